@@ -1,0 +1,44 @@
+"""The ``privslam`` command.
+
+Each subcommand lives in ``privslam_jax/commands/<name>.py`` and exposes
+``add_parser(subparsers)`` (which registers its arguments and sets ``func``).
+Only commands that work are listed here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from privslam_jax._xla import configure_xla
+
+# Module names under privslam_jax.commands, in the order `privslam --help` lists them.
+_COMMANDS: tuple[str, ...] = ("run", "synth")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    import importlib
+
+    parser = argparse.ArgumentParser(
+        prog="privslam",
+        description="Privacy-preserving edge-assisted visual SLAM in JAX.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in _COMMANDS:
+        importlib.import_module(f"privslam_jax.commands.{name}").add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    configure_xla()
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (FileNotFoundError, ValueError) as err:  # bad input: clear message, no traceback
+        print(f"privslam {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

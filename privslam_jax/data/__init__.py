@@ -1,0 +1,1 @@
+"""privslam_jax.data."""
