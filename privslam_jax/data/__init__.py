@@ -1,1 +1,12 @@
 """privslam_jax.data."""
+
+from privslam_jax.data.trajectory_io import (
+    load_kitti,
+    load_tum,
+    read_kitti_matrices,
+    read_tum_matrices,
+    save_kitti,
+    save_tum,
+    write_kitti_matrices,
+    write_tum_matrices,
+)
