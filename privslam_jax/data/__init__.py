@@ -1,5 +1,14 @@
 """privslam_jax.data."""
 
+from privslam_jax.data.ply import (
+    load_line_cloud,
+    load_point_cloud,
+    read_ply,
+    save_line_cloud,
+    save_point_cloud,
+    write_ply,
+)
+
 from privslam_jax.data.trajectory_io import (
     load_kitti,
     load_tum,
