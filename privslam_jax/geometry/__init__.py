@@ -1,1 +1,9 @@
 """privslam_jax.geometry."""
+
+from privslam_jax.geometry.plucker import (
+    closest_approach,
+    closest_point_to_origin,
+    line_line_distance,
+    lines_from_points_directions,
+    point_line_distance,
+)

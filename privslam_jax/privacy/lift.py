@@ -1,0 +1,111 @@
+"""Point → line lifts that hide the points of a map (DESIGN §5.4).
+
+* :func:`random_lift` — the source paper's lift (Speciale et al., CVPR 2019 "privacy-preserving
+  image-based localisation"): every point ``p`` becomes the line through ``p`` with direction
+  ``d = n/‖n‖, n ~ N(0, I₃)``, i.e. uniform on the unit sphere.
+* :func:`paired_lift` — paired-point lifting (Lee et al., CVPR 2023, "Paired-Point Lifting for
+  Enhanced Privacy-Preserving Visual Localization"): points are paired and each pair is lifted
+  to the one line through both points, so every line holds two points and a density peak along
+  a line no longer identifies one point.  **Pairing rule used here**: a uniformly random perfect
+  matching (a random permutation from the key; consecutive entries are paired).  With an odd
+  count the left-over point, and any pair closer than ``1e-9`` m, gets a random-direction line.
+
+The output is a :class:`~privslam_jax.types.LineCloud` in Plücker coordinates ``(d, m = p × d)``,
+which carries nothing but the line: the original point is never stored.  Line ``i`` is the line
+of point ``i`` (for paired lifting the two points of a pair share their line).
+
+**Keys.** A lift is only as secret as its randomness.  Without a key, the key is drawn from
+the operating system's entropy (``os.urandom``, 64 bits), so two default lifts of the same
+cloud differ; pass :func:`fixed_key` (an explicit seed) only for reproducible experiments.
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from privslam_jax.types import LineCloud
+
+__all__ = ["entropy_key", "fixed_key", "random_directions", "random_lift", "paired_lift", "pairing"]
+
+
+def entropy_key() -> jax.Array:
+    """A fresh ``jax.random`` key from 64 bits of OS entropy (``os.urandom``)."""
+    words = np.frombuffer(os.urandom(8), dtype=np.uint32)
+    return jax.random.wrap_key_data(jnp.asarray(words), impl="threefry2x32")
+
+
+def fixed_key(seed: int) -> jax.Array:
+    """A reproducible key from an explicit integer seed (experiments only: not secret)."""
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
+        raise ValueError(f"seed must be an int, got {seed!r}")
+    return jax.random.key(int(seed), impl="threefry2x32")
+
+
+def _as_points(points: ArrayLike) -> jax.Array:
+    p = jnp.asarray(points)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {tuple(p.shape)}")
+    if not jnp.issubdtype(p.dtype, jnp.floating):
+        p = p.astype(jnp.result_type(float))
+    if not bool(jnp.all(jnp.isfinite(p))):
+        raise ValueError("points contain NaN or inf")
+    return p
+
+
+@jax.jit
+def random_directions(key: jax.Array, like: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
+    """Unit directions ``n/‖n‖`` with ``n ~ N(0, I₃)``: uniform on the sphere (one per row of ``like``)."""
+    n = jax.random.normal(key, like.shape, like.dtype)
+    return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def random_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
+    """Lift each point to a line of uniformly random direction through it.
+
+    Args:
+      points: ``(N, 3)`` points.
+      key: a ``jax.random`` key; ``None`` (default) draws one from OS entropy.
+    """
+    p = _as_points(points)
+    key = entropy_key() if key is None else key
+    d = random_directions(key, p)
+    return LineCloud(directions=d, moments=jnp.cross(p, d))
+
+
+def pairing(n: int, key: jax.Array) -> np.ndarray:
+    """The random perfect matching of :func:`paired_lift`: ``partner[i]`` (``-1`` for the odd one out)."""
+    perm = np.asarray(jax.random.permutation(key, n))
+    partner = np.full(n, -1, dtype=np.int64)
+    a, b = perm[0 : n - n % 2 : 2], perm[1 : n - n % 2 : 2]
+    partner[a], partner[b] = b, a
+    return partner
+
+
+def paired_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
+    """Paired-point lifting (Lee et al., CVPR 2023): one line through each random pair of points.
+
+    Line ``i`` passes through point ``i`` and its partner (see :func:`pairing`); the direction
+    is ``±(p_j − p_i)/‖p_j − p_i‖`` with a random sign, so the segment order leaks nothing.
+    """
+    p = _as_points(points)
+    key = entropy_key() if key is None else key
+    k_pair, k_sign, k_dir = jax.random.split(key, 3)
+    n = p.shape[0]
+    partner = pairing(n, k_pair)
+    lo = np.minimum(np.arange(n), np.where(partner < 0, n, partner))  # one representative per pair
+    rep = np.where(partner < 0, np.arange(n), lo)
+    other = np.where(partner < 0, np.arange(n), np.where(rep == np.arange(n), partner, np.arange(n)))
+    rep_j, other_j = jnp.asarray(rep), jnp.asarray(other)
+    diff = p[other_j] - p[rep_j]
+    length = jnp.linalg.norm(diff, axis=-1, keepdims=True)
+    rnd = random_directions(k_dir, p)[rep_j]
+    sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (n, 1)), 1.0, -1.0).astype(p.dtype)[rep_j]
+    degenerate = length < 1e-9
+    d = jnp.where(degenerate, rnd, sign * diff / jnp.where(degenerate, 1.0, length))
+    # the moment from the pair's representative point: both points get the bit-identical line
+    return LineCloud(directions=d, moments=jnp.cross(p[rep_j], d))

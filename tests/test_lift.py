@@ -1,0 +1,126 @@
+"""Lifts: uniform directions (a test that rejects biased samplers), points on their lines,
+naive decoders fail, default keys differ; Plücker helpers against numpy closed forms."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+from privslam_jax.geometry.plucker import (
+    closest_approach,
+    closest_point_to_origin,
+    line_line_distance,
+    lines_from_points_directions,
+    point_line_distance,
+)
+from privslam_jax.privacy.lift import entropy_key, fixed_key, paired_lift, pairing, random_lift
+
+
+def isotropy_pvalues(d: np.ndarray) -> tuple[float, float]:
+    """Rayleigh test (3n‖mean‖² ~ χ²₃) and Bingham test ((15n/2)‖T − I/3‖²_F ~ χ²₅) of uniformity on S²."""
+    n = d.shape[0]
+    rayleigh = 3.0 * n * float(np.sum(d.mean(0) ** 2))
+    T = d.T @ d / n
+    bingham = 7.5 * n * float(np.sum((T - np.eye(3) / 3) ** 2))
+    return float(stats.chi2.sf(rayleigh, 3)), float(stats.chi2.sf(bingham, 5))
+
+
+def test_directions_uniform_and_biased_rejected():
+    n = 20000
+    pts = np.random.default_rng(0).normal(size=(n, 3)) * 20
+    lines = random_lift(pts, fixed_key(3))
+    d = np.asarray(lines.directions, np.float64)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-6)
+    p_r, p_b = isotropy_pvalues(d)
+    assert p_r > 1e-3 and p_b > 1e-3, (p_r, p_b)
+    # the same statistics reject slightly biased samplers
+    rng = np.random.default_rng(1)
+    shifted = rng.normal(size=(n, 3)) + np.array([0.05, 0, 0])
+    shifted /= np.linalg.norm(shifted, axis=1, keepdims=True)
+    assert isotropy_pvalues(shifted)[0] < 1e-6
+    squashed = rng.normal(size=(n, 3)) * np.array([1.0, 1.0, 1.1])
+    squashed /= np.linalg.norm(squashed, axis=1, keepdims=True)
+    assert isotropy_pvalues(squashed)[1] < 1e-6
+
+
+def _points(n=300, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-30, 30, size=(n, 3))
+
+
+@pytest.mark.parametrize("lift", [random_lift, paired_lift])
+def test_points_on_lines_and_naive_decoders_fail(lift):
+    pts = _points()
+    with jax.enable_x64(True):
+        lines = lift(jnp.asarray(pts), fixed_key(0))
+        d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    assert d.dtype == np.float64
+    dist = np.linalg.norm(np.cross(pts, d) - m, axis=1)
+    assert dist.max() < 1e-6
+    c = np.cross(d, m)  # closest point to the origin = start of the canonical segment
+    for guess in (c, c + 0.5 * d):  # closest point, midpoint of the canonical unit segment
+        err = np.linalg.norm(guess - pts, axis=1)
+        assert np.median(err) > 5.0 and np.mean(err < 0.5) < 0.05
+
+
+def test_default_lifts_differ_and_fixed_seed_reproduces():
+    pts = _points(50)
+    a, b = random_lift(pts), random_lift(pts)
+    assert not np.allclose(np.asarray(a.directions), np.asarray(b.directions))
+    pa, pb = paired_lift(pts), paired_lift(pts)
+    assert not np.allclose(np.asarray(pa.directions), np.asarray(pb.directions))
+    k1, k2 = entropy_key(), entropy_key()
+    assert not np.array_equal(np.asarray(jax.random.key_data(k1)), np.asarray(jax.random.key_data(k2)))
+    np.testing.assert_array_equal(
+        np.asarray(random_lift(pts, fixed_key(7)).directions), np.asarray(random_lift(pts, fixed_key(7)).directions)
+    )
+
+
+def test_paired_lift_structure():
+    pts = _points(101)
+    lines = paired_lift(pts, fixed_key(5))
+    partner = pairing(101, jax.random.split(fixed_key(5), 3)[0])
+    assert np.sum(partner < 0) == 1
+    i = np.flatnonzero(partner >= 0)
+    assert np.all(partner[partner[i]] == i)
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    # both points of a pair lie on line i (float32 here: tolerance relative to 30 m coordinates)
+    j = partner[i]
+    assert np.linalg.norm(np.cross(pts[j], d[i]) - m[i], axis=1).max() < 1e-4
+    np.testing.assert_array_equal(d[i], d[j])
+    np.testing.assert_array_equal(m[i], m[j])
+
+
+def test_bad_points():
+    with pytest.raises(ValueError, match="shape"):
+        random_lift(np.zeros((4, 2)), fixed_key(0))
+    with pytest.raises(ValueError, match="NaN"):
+        paired_lift(np.full((4, 3), np.nan), fixed_key(0))
+
+
+def test_plucker_helpers_against_numpy():
+    rng = np.random.default_rng(2)
+    p1, p2 = rng.normal(size=(2, 64, 3)) * 5
+    u1, u2 = rng.normal(size=(2, 64, 3))
+    u2[0] = u1[0]  # one parallel pair
+    d1 = u1 / np.linalg.norm(u1, axis=1, keepdims=True)
+    d2 = u2 / np.linalg.norm(u2, axis=1, keepdims=True)
+    with jax.enable_x64(True):
+        L1 = lines_from_points_directions(jnp.asarray(p1), jnp.asarray(u1))
+        L2 = lines_from_points_directions(jnp.asarray(p2), jnp.asarray(u2))
+        c1 = np.asarray(closest_point_to_origin(L1.directions, L1.moments))
+        t1, t2 = (np.asarray(t) for t in closest_approach(jnp.asarray(p1), jnp.asarray(d1), jnp.asarray(p2), jnp.asarray(d2)))
+        lld = np.asarray(line_line_distance(L1.directions, L1.moments, L2.directions, L2.moments))
+        pld = np.asarray(point_line_distance(jnp.asarray(p2), L1.directions, L1.moments))
+    np.testing.assert_allclose(c1, p1 - np.sum(p1 * d1, 1, keepdims=True) * d1, atol=1e-12)
+    np.testing.assert_allclose(pld, np.linalg.norm(np.cross(p2 - p1, d1), axis=1), atol=1e-10)
+    # closest approach by brute-force least squares on [d1, -d2] t = p2 - p1
+    for k in range(1, 64):
+        A = np.stack([d1[k], -d2[k]], 1)
+        t = np.linalg.lstsq(A, p2[k] - p1[k], rcond=None)[0]
+        np.testing.assert_allclose([t1[k], t2[k]], t, atol=1e-8)
+        np.testing.assert_allclose(lld[k], np.linalg.norm(p1[k] + t[0] * d1[k] - p2[k] - t[1] * d2[k]), atol=1e-8)
+    np.testing.assert_allclose(lld[0], np.linalg.norm(np.cross(p2[0] - p1[0], d1[0])), atol=1e-9)
