@@ -7,3 +7,4 @@ from privslam_jax.geometry.plucker import (
     lines_from_points_directions,
     point_line_distance,
 )
+from privslam_jax.geometry.align import apply_similarity, umeyama, umeyama_np
