@@ -12,8 +12,52 @@ from privslam_jax.inpaint.edgeconnect import (
     instance_norm,
 )
 from privslam_jax.inpaint.weights import load_npz, load_state_dict
+from privslam_jax.inpaint.baselines import LEAKY_METHODS, METHODS, SAFE_METHODS, fill
+from privslam_jax.inpaint.crops import CropBox, crop_box, extract, paste_back
+from privslam_jax.inpaint.filter import (
+    FILTER_METHODS,
+    Inpainter,
+    InpainterConfig,
+    edgeconnect_forward,
+    filter_frame,
+)
+from privslam_jax.inpaint.masks import (
+    boxes_to_masks,
+    dilate,
+    edge_band,
+    fill_hole_from_outside,
+    instance_masks,
+    random_box_mask,
+    random_irregular_mask,
+    safe_canny,
+    to_grey,
+    union,
+)
 
 __all__ = [
+    "FILTER_METHODS",
+    "LEAKY_METHODS",
+    "METHODS",
+    "SAFE_METHODS",
+    "CropBox",
+    "Inpainter",
+    "InpainterConfig",
+    "boxes_to_masks",
+    "crop_box",
+    "dilate",
+    "edge_band",
+    "edgeconnect_forward",
+    "extract",
+    "fill",
+    "fill_hole_from_outside",
+    "filter_frame",
+    "instance_masks",
+    "paste_back",
+    "random_box_mask",
+    "random_irregular_mask",
+    "safe_canny",
+    "to_grey",
+    "union",
     "CPU_WIDTH",
     "Conv",
     "Discriminator",

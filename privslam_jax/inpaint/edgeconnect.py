@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float
 
@@ -56,6 +57,16 @@ _INIT_STD = 0.02  # official init_weights('normal', gain=0.02), biases zero
 
 class SpectralState(nnx.Variable):
     """Power-iteration vectors ``u`` (out) and ``v`` (in·kh·kw) of spectral norm; not trained."""
+
+
+def _host_normal(key: jax.Array, shape: tuple[int, ...], std: float = 1.0) -> jax.Array:
+    """N(0, std²) drawn on the host by a numpy generator seeded from ``key``.
+
+    Deterministic for the key, and it avoids compiling one XLA random kernel per weight shape
+    (which dominated model construction time on CPU).
+    """
+    seed = np.asarray(jax.random.key_data(key)).astype(np.uint32).ravel()
+    return jnp.asarray(np.random.default_rng(seed).normal(0.0, std, shape).astype(np.float32))
 
 
 def _normalise(x: Float[Array, " n"], eps: float = 1e-12) -> Float[Array, " n"]:
@@ -106,13 +117,14 @@ class Conv(nnx.Module):
         self.use_running_average = False
         k = kernel_size
         self.kernel = nnx.Param(
-            _INIT_STD * jax.random.normal(rngs.params(), (k, k, in_features, out_features))
+            _host_normal(rngs.params(), (k, k, in_features, out_features), _INIT_STD)
         )
-        self.bias = nnx.Param(jnp.zeros((out_features,))) if use_bias else None
+        self.bias = nnx.Param(jnp.asarray(np.zeros((out_features,), np.float32))) if use_bias else None
         if spectral_norm:
-            ku, kv = jax.random.split(rngs.params())
-            self.u = SpectralState(_normalise(jax.random.normal(ku, (out_features,))))
-            self.v = SpectralState(_normalise(jax.random.normal(kv, (in_features * k * k,))))
+            u = np.asarray(_host_normal(rngs.params(), (out_features,)))
+            v = np.asarray(_host_normal(rngs.params(), (in_features * k * k,)))
+            self.u = SpectralState(jnp.asarray(u / np.linalg.norm(u)))
+            self.v = SpectralState(jnp.asarray(v / np.linalg.norm(v)))
         else:
             self.u = None
             self.v = None

@@ -1,0 +1,187 @@
+"""Frame-level privacy filter: remove each masked object and fill the hole.
+
+``filter_frame(image, masks, method)`` with ``masks (K, H, W)`` one per object (already dilated,
+see :mod:`privslam_jax.inpaint.masks`). ``method`` is ``"edgeconnect"`` (crop-based inference
+with an :class:`Inpainter`, see :mod:`privslam_jax.inpaint.crops`) or any baseline of
+:mod:`privslam_jax.inpaint.baselines` (applied to the union mask). A frame without objects is
+returned bit-identical. Pixels outside the union mask are never changed.
+
+EdgeConnect inference on one ``S × S`` crop (official ``EdgeConnect.inpaint`` flow, with the
+leak-free edges of :func:`~privslam_jax.inpaint.masks.safe_canny`):
+``m`` = hole, ``b`` = hole grown by the edge band;
+``e = G_edge([grey·(1−b) + b, edges·(1−b), b])``, ``ê = e·b + edges·(1−b)``;
+``y = G_img([rgb·(1−m) + m, ê])``, output ``y·m + rgb·(1−m)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, Float
+
+from privslam_jax.inpaint import baselines
+from privslam_jax.inpaint.crops import crop_box, extract, paste_back
+from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGenerator
+from privslam_jax.inpaint.masks import safe_canny, to_grey
+
+__all__ = ["FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward", "filter_frame"]
+
+FILTER_METHODS: tuple[str, ...] = ("edgeconnect",) + baselines.METHODS
+
+
+@dataclasses.dataclass(frozen=True)
+class InpainterConfig:
+    """Architecture and inference settings of an EdgeConnect inpainter."""
+
+    width: int = CPU_WIDTH
+    """Channel width (official 64; CPU preset 16)."""
+    num_residual_blocks: int = 8
+    """Residual blocks of each generator (official 8)."""
+    size: int = 64
+    """Model resolution: every crop is resized to ``size × size`` (multiple of 4)."""
+    crop_pad: float = 0.5
+    """Context around the mask's bounding box, as a share of its larger side, on each side."""
+    min_crop: int = 32
+    """Smallest crop side in frame pixels."""
+    sigma: float = 2.0
+    """Canny σ (EdgeConnect: 2)."""
+
+
+def edgeconnect_forward(
+    edge_gen: EdgeGenerator,
+    inpaint_gen: InpaintGenerator,
+    rgb: Float[Array, "B S S 3"],
+    grey: Float[Array, "B S S 1"],
+    edges: Float[Array, "B S S 1"],
+    hole: Float[Array, "B S S 1"],
+    edge_hole: Float[Array, "B S S 1"],
+) -> tuple[Float[Array, "B S S 3"], Float[Array, "B S S 1"], Float[Array, "B S S 3"]]:
+    """Both stages; returns ``(composited image, full edge map ê, raw generator output)``."""
+    b = edge_hole
+    e = edge_gen(jnp.concatenate([grey * (1 - b) + b, edges * (1 - b), b], axis=-1))
+    e_full = e * b + edges * (1 - b)
+    y = inpaint_gen(jnp.concatenate([rgb * (1 - hole) + hole, e_full], axis=-1))
+    return y * hole + rgb * (1 - hole), e_full, y
+
+
+class Inpainter:
+    """EdgeConnect generators in eval mode plus one jitted forward at the model resolution."""
+
+    def __init__(self, edge_gen: EdgeGenerator, inpaint_gen: InpaintGenerator, config: InpainterConfig):
+        if config.size % 4:
+            raise ValueError(f"model size must be a multiple of 4, got {config.size}")
+        self.config = config
+        edge_gen.eval()
+        inpaint_gen.eval()
+        self.graphdef, self.state = nnx.split((edge_gen, inpaint_gen))
+
+        def run(state, rgb, grey, edges, hole, edge_hole):
+            eg, ig = nnx.merge(self.graphdef, state)
+            return edgeconnect_forward(eg, ig, rgb, grey, edges, hole, edge_hole)[0]
+
+        self._run = jax.jit(run)
+
+    @classmethod
+    def init(cls, config: InpainterConfig = InpainterConfig(), seed: int = 0) -> Inpainter:
+        """Randomly initialised generators (N(0, 0.02)) — for tests and training."""
+        rngs = nnx.Rngs(seed)
+        eg = EdgeGenerator(num_residual_blocks=config.num_residual_blocks, width=config.width, rngs=rngs)
+        ig = InpaintGenerator(num_residual_blocks=config.num_residual_blocks, width=config.width, rngs=rngs)
+        return cls(eg, ig, config)
+
+    @property
+    def modules(self) -> tuple[EdgeGenerator, InpaintGenerator]:
+        return nnx.merge(self.graphdef, self.state)
+
+    def save(self, path: str | Path) -> None:
+        """Write the generators' state and config to one ``.npz`` (portable, no pickle)."""
+        flat = {".".join(map(str, k)): np.asarray(v) for k, v in nnx.to_flat_state(self.state)}
+        cfg = {f"config/{k}": np.asarray(v) for k, v in dataclasses.asdict(self.config).items()}
+        np.savez_compressed(path, **flat, **cfg)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Inpainter:
+        """Read an ``.npz`` written by :meth:`save`."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"inpainter checkpoint not found: {path}")
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+        fields = {f.name: f.type for f in dataclasses.fields(InpainterConfig)}
+        kw = {}
+        for k in fields:
+            if f"config/{k}" in arrays:
+                v = arrays.pop(f"config/{k}").item()
+                kw[k] = float(v) if isinstance(v, float) else int(v)
+        config = InpainterConfig(**kw)
+        model = cls.init(config)
+        flat = dict(nnx.to_flat_state(model.state))
+        new = []
+        for key, var in flat.items():
+            name = ".".join(map(str, key))
+            if name not in arrays:
+                raise ValueError(f"{path}: missing {name}")
+            val = arrays.pop(name)
+            if val.shape != var[...].shape:
+                raise ValueError(f"{path}: {name} has shape {val.shape}, expected {var[...].shape}")
+            new.append((key, var.replace(jnp.asarray(val))))
+        if arrays:
+            raise ValueError(f"{path}: unexpected arrays {sorted(arrays)[:3]}")
+        model.state = nnx.from_flat_state(new)
+        return model
+
+    def inpaint_crop(self, rgb: np.ndarray, hole: np.ndarray) -> Float[np.ndarray, "S S 3"]:
+        """Inpaint one ``(S, S, 3)`` crop whose ``hole`` pixels are already zeroed."""
+        cfg = self.config
+        grey = to_grey(rgb)
+        edges, edge_hole = safe_canny(grey, hole, sigma=cfg.sigma)
+        f = lambda x: jnp.asarray(x, jnp.float32)[None, ..., None]  # noqa: E731
+        out = self._run(self.state, jnp.asarray(rgb)[None], f(grey), f(edges), f(hole), f(edge_hole))
+        return np.asarray(out[0])
+
+
+def filter_frame(
+    image: np.ndarray,
+    masks: np.ndarray,
+    method: str = "edgeconnect",
+    *,
+    inpainter: Inpainter | None = None,
+    seed: int = 0,
+) -> Float[np.ndarray, "H W 3"]:
+    """Hide every object of ``masks (K, H, W)`` in ``image (H, W, 3)`` (see module docstring)."""
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image must be (H, W, 3) RGB, got shape {image.shape}")
+    h, w = image.shape[:2]
+    masks = np.asarray(masks)
+    if masks.dtype != np.bool_ or masks.ndim != 3 or masks.shape[1:] != (h, w):
+        raise ValueError(f"masks must be bool (K, {h}, {w}), got {masks.dtype} {masks.shape}")
+    if method not in FILTER_METHODS:
+        raise ValueError(f"unknown filter method {method!r}; choose from {', '.join(FILTER_METHODS)}")
+    image = image.astype(np.float32, copy=False)
+    masks = masks[masks.any(axis=(1, 2))]
+    if len(masks) == 0:
+        return image.copy()
+    hidden = masks.any(axis=0)
+    if method != "edgeconnect":
+        return baselines.fill(image, hidden, method, seed=seed)
+    if inpainter is None:
+        raise ValueError("method 'edgeconnect' needs an Inpainter (e.g. Inpainter.load(path))")
+    cfg = inpainter.config
+    acc = np.zeros((h, w, 3), np.float64)
+    cnt = np.zeros((h, w), np.int32)
+    for m in masks:
+        box = crop_box(m, cfg.crop_pad, cfg.min_crop)
+        rgb_s, hole_s = extract(image, hidden, box, cfg.size)
+        out = paste_back(inpainter.inpaint_crop(rgb_s, hole_s), box)
+        sl = (slice(box.v0, box.v1), slice(box.u0, box.u1))
+        own = m[sl]
+        acc[sl][own] += out[own]
+        cnt[sl][own] += 1
+    res = image.copy()
+    res[hidden] = (acc[hidden] / cnt[hidden][:, None]).astype(np.float32)
+    return res

@@ -1,0 +1,105 @@
+"""Crop-based EdgeConnect inference: pass-through, locality, privacy, save/load."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from privslam_jax.inpaint.crops import crop_box, extract
+from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame
+
+CFG = InpainterConfig(width=4, num_residual_blocks=1, size=32, min_crop=16)
+
+
+@pytest.fixture(scope="module")
+def inpainter():
+    return Inpainter.init(CFG, seed=0)
+
+
+def _frame(seed=0, h=72, w=160):
+    rng = np.random.default_rng(seed)
+    img = np.clip(rng.random((h, w, 3)) * 0.3 + np.linspace(0, 0.7, w)[None, :, None], 0, 1)
+    return img.astype(np.float32), rng
+
+
+def _box(h, w, v0, v1, u0, u1):
+    m = np.zeros((h, w), bool)
+    m[v0:v1, u0:u1] = True
+    return m
+
+
+def test_crop_box_contains_mask_and_stays_inside():
+    m = _box(72, 160, 60, 72, 150, 160)  # touching the corner
+    b = crop_box(m, 0.5, 16)
+    assert 0 <= b.v0 < b.v1 <= 72 and 0 <= b.u0 < b.u1 <= 160
+    assert b.v0 <= 60 and b.u0 <= 150 and b.height == b.width == 24  # 12 px side × (1 + 2·0.5)
+    big = _box(72, 160, 0, 72, 10, 30)  # taller than the frame allows with padding
+    b2 = crop_box(big, 0.5, 16)
+    assert (b2.v0, b2.v1) == (0, 72) and b2.width == 72
+    with pytest.raises(ValueError):
+        crop_box(np.zeros((4, 4), bool))
+
+
+def test_extract_hole_covers_every_pixel_touched_by_hidden(inpainter):
+    img, rng = _frame()
+    hidden = _box(72, 160, 20, 41, 30, 57)
+    box = crop_box(hidden, 0.5, 16)
+    rgb_a, hole_a = extract(img, hidden, box, 32)
+    other = img.copy()
+    other[hidden] = rng.random((int(hidden.sum()), 3))
+    rgb_b, hole_b = extract(other, hidden, box, 32)
+    assert np.array_equal(rgb_a, rgb_b) and np.array_equal(hole_a, hole_b)
+    assert hole_a.mean() > 0.2
+
+
+def test_no_detection_is_identity(inpainter):
+    img, _ = _frame()
+    out = filter_frame(img, np.zeros((0, 72, 160), bool), "edgeconnect", inpainter=inpainter)
+    assert np.array_equal(out, img)
+    out = filter_frame(img, np.zeros((2, 72, 160), bool), "edgeconnect", inpainter=inpainter)
+    assert np.array_equal(out, img)
+
+
+def test_edgeconnect_filter_is_private_and_local(inpainter):
+    img, rng = _frame(1)
+    a = _box(72, 160, 10, 30, 10, 30)
+    b = _box(72, 160, 40, 66, 110, 140)
+    both = filter_frame(img, np.stack([a, b]), "edgeconnect", inpainter=inpainter)
+    only_a = filter_frame(img, a[None], "edgeconnect", inpainter=inpainter)
+    only_b = filter_frame(img, b[None], "edgeconnect", inpainter=inpainter)
+    union = a | b
+    assert np.array_equal(both[~union], img[~union])  # outside untouched
+    assert np.array_equal(both[a], only_a[a]) and np.array_equal(both[b], only_b[b])
+    assert not np.allclose(both[a], img[a])  # something was filled
+    other = img.copy()
+    other[union] = rng.random((int(union.sum()), 3))
+    assert np.array_equal(filter_frame(other, np.stack([b, a]), "edgeconnect", inpainter=inpainter), both)
+
+
+def test_overlapping_objects_average_and_baselines_dispatch(inpainter):
+    img, _ = _frame(2)
+    a = _box(72, 160, 10, 40, 10, 40)
+    b = _box(72, 160, 30, 60, 30, 60)
+    out = filter_frame(img, np.stack([a, b]), "edgeconnect", inpainter=inpainter)
+    assert np.all(np.isfinite(out)) and np.array_equal(out[~(a | b)], img[~(a | b)])
+    black = filter_frame(img, np.stack([a, b]), "black")
+    assert np.all(black[a | b] == 0)
+    with pytest.raises(ValueError, match="unknown filter method"):
+        filter_frame(img, a[None], "nope")
+    with pytest.raises(ValueError, match="masks must be bool"):
+        filter_frame(img, a, "black")
+    with pytest.raises(ValueError, match="needs an Inpainter"):
+        filter_frame(img, a[None], "edgeconnect")
+
+
+def test_save_load_roundtrip(inpainter, tmp_path):
+    img, _ = _frame(3)
+    a = _box(72, 160, 10, 30, 60, 90)
+    inpainter.save(tmp_path / "m.npz")
+    again = Inpainter.load(tmp_path / "m.npz")
+    assert again.config == CFG
+    np.testing.assert_array_equal(
+        filter_frame(img, a[None], inpainter=again), filter_frame(img, a[None], inpainter=inpainter)
+    )
+    with pytest.raises(FileNotFoundError):
+        Inpainter.load(tmp_path / "none.npz")
