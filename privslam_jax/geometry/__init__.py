@@ -8,3 +8,15 @@ from privslam_jax.geometry.plucker import (
     point_line_distance,
 )
 from privslam_jax.geometry.align import apply_similarity, umeyama, umeyama_np
+from privslam_jax.geometry.projection import (
+    pinhole,
+    pinhole_stereo,
+    project_points,
+    reprojection_jacobians,
+    reprojection_residual,
+    reprojection_residuals,
+    stereo_jacobians,
+    stereo_residual,
+    world_to_camera,
+    world_to_camera_from_pose,
+)

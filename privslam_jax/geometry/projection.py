@@ -1,0 +1,147 @@
+"""Rigid transforms, pinhole projection and reprojection residuals with analytic Jacobians.
+
+Conventions (DESIGN §3): ``T_c_w`` maps world points into the camera frame (``p_c = T_c_w p_w``),
+``T_w_c = T_c_w⁻¹`` is the camera pose.  The camera looks along ``+z``, ``x`` right, ``y`` down;
+pixels ``(u, v)`` with ``v`` down (OpenCV).
+
+Every kernel here is written for **one** point / observation and ``vmap``-ed by the caller (or by the
+``*_batch`` helpers), in the manner of jaxls.
+
+Jacobians (used by :mod:`privslam_jax.slam.refine` and :mod:`privslam_jax.slam.ba`) are for the
+**left** perturbation of the world-to-camera pose, ``T_c_w ← exp(δ) · T_c_w`` with jaxlie's tangent
+order ``δ = (ρ, ω)`` (translation first).  To first order ``p_c(δ) = p_c + ρ + ω × p_c``, so
+
+    ∂p_c/∂ρ = I₃,   ∂p_c/∂ω = −[p_c]ₓ,   ∂p_c/∂p_w = R_c_w,
+
+and the pinhole ``u = fx·x/z + cx``, ``v = fy·y/z + cy`` (stereo: ``u_r = fx·(x − b)/z + cx``) has
+
+    ∂(u, v)/∂p_c = [[fx/z, 0, −fx·x/z²], [0, fy/z, −fy·y/z²]],   ∂u_r/∂p_c = [fx/z, 0, −fx·(x − b)/z²].
+
+This is the ``EdgeSE3ProjectXYZ`` Jacobian of ORB-SLAM (g2o), up to g2o's (ω, ρ) ordering and its
+residual sign (g2o uses ``obs − proj``; here ``r = proj − obs``).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+from jaxtyping import Array, Float
+
+from privslam_jax.types import Camera
+
+__all__ = [
+    "world_to_camera",
+    "world_to_camera_from_pose",
+    "pinhole",
+    "pinhole_stereo",
+    "project_points",
+    "reprojection_residual",
+    "reprojection_residuals",
+    "reprojection_jacobians",
+    "stereo_residual",
+    "stereo_jacobians",
+    "skew",
+]
+
+
+def skew(v: Float[Array, "3"]) -> Float[Array, "3 3"]:
+    """The cross-product matrix ``[v]ₓ`` with ``[v]ₓ a = v × a``."""
+    z = jnp.zeros_like(v[0])
+    return jnp.stack(
+        [jnp.stack([z, -v[2], v[1]]), jnp.stack([v[2], z, -v[0]]), jnp.stack([-v[1], v[0], z])]
+    )
+
+
+def world_to_camera(T_c_w: jaxlie.SE3, p_w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """``p_c = T_c_w · p_w`` (``T_c_w`` unbatched, points with any batch shape)."""
+    t = T_c_w.translation()
+    return p_w @ T_c_w.rotation().as_matrix().T + jnp.reshape(t, (1,) * (p_w.ndim - 1) + (3,))
+
+
+def world_to_camera_from_pose(T_w_c: jaxlie.SE3, p_w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """``p_c = T_w_c⁻¹ · p_w = R_w_cᵀ (p_w − t_w_c)`` for a camera pose ``T_w_c`` (unbatched)."""
+    t = T_w_c.translation()
+    return (p_w - jnp.reshape(t, (1,) * (p_w.ndim - 1) + (3,))) @ T_w_c.rotation().as_matrix()
+
+
+def pinhole(p_c: Float[Array, "3"], fx: Array | float, fy: Array | float, cx: Array | float, cy: Array | float) -> Float[Array, "2"]:
+    """Pinhole projection of one camera-frame point: ``(fx·x/z + cx, fy·y/z + cy)``."""
+    inv_z = 1.0 / p_c[2]
+    return jnp.stack([fx * p_c[0] * inv_z + cx, fy * p_c[1] * inv_z + cy])
+
+
+def pinhole_stereo(
+    p_c: Float[Array, "3"], fx: Array | float, fy: Array | float, cx: Array | float, cy: Array | float, bf: Array | float
+) -> Float[Array, "3"]:
+    """Rectified stereo projection ``(u, v, u_r)`` with ``u_r = u − bf/z`` and ``bf = fx·baseline``."""
+    inv_z = 1.0 / p_c[2]
+    u = fx * p_c[0] * inv_z + cx
+    return jnp.stack([u, fy * p_c[1] * inv_z + cy, u - bf * inv_z])
+
+
+def project_points(T_c_w: jaxlie.SE3, p_w: Float[Array, "N 3"], camera: Camera) -> Float[Array, "N 2"]:
+    """Project world points into a camera with world-to-camera pose ``T_c_w``."""
+    return camera.project(world_to_camera(T_c_w, p_w))
+
+
+def reprojection_residual(
+    T_c_w: jaxlie.SE3, p_w: Float[Array, "3"], uv: Float[Array, "2"], camera: Camera
+) -> Float[Array, "2"]:
+    """Residual of one observation: ``π(T_c_w p_w) − uv`` in pixels."""
+    return pinhole(T_c_w @ p_w, camera.fx, camera.fy, camera.cx, camera.cy) - uv
+
+
+def reprojection_residuals(
+    T_c_w: jaxlie.SE3, p_w: Float[Array, "N 3"], uv: Float[Array, "N 2"], camera: Camera
+) -> Float[Array, "N 2"]:
+    """:func:`reprojection_residual` vmapped over observations of one camera."""
+    return jax.vmap(reprojection_residual, in_axes=(None, 0, 0, None))(T_c_w, p_w, uv, camera)
+
+
+def _d_proj_d_pc(p_c: Float[Array, "3"], fx: Array | float, fy: Array | float) -> Float[Array, "2 3"]:
+    inv_z = 1.0 / p_c[2]
+    z = jnp.zeros_like(inv_z)
+    return jnp.stack(
+        [
+            jnp.stack([fx * inv_z, z, -fx * p_c[0] * inv_z * inv_z]),
+            jnp.stack([z, fy * inv_z, -fy * p_c[1] * inv_z * inv_z]),
+        ]
+    )
+
+
+def _d_pc_d_pose(p_c: Float[Array, "3"]) -> Float[Array, "3 6"]:
+    return jnp.concatenate([jnp.eye(3, dtype=p_c.dtype), -skew(p_c)], axis=1)
+
+
+def reprojection_jacobians(
+    p_c: Float[Array, "3"], R_c_w: Float[Array, "3 3"], fx: Array | float, fy: Array | float
+) -> tuple[Float[Array, "2 6"], Float[Array, "2 3"]]:
+    """Jacobians of ``π(T_c_w p_w)`` w.r.t. the left pose perturbation ``(ρ, ω)`` and the point ``p_w``.
+
+    ``p_c`` is the camera-frame point ``T_c_w p_w`` (already computed by the caller).
+    """
+    J_proj = _d_proj_d_pc(p_c, fx, fy)
+    return J_proj @ _d_pc_d_pose(p_c), J_proj @ R_c_w
+
+
+def stereo_residual(
+    T_c_w: jaxlie.SE3, p_w: Float[Array, "3"], uvr: Float[Array, "3"], camera: Camera
+) -> Float[Array, "3"]:
+    """Stereo residual ``(u, v, u_r) − obs`` of one observation (needs ``camera.baseline``)."""
+    if camera.baseline is None:
+        raise ValueError("stereo residuals need camera.baseline")
+    bf = camera.fx * camera.baseline
+    return pinhole_stereo(T_c_w @ p_w, camera.fx, camera.fy, camera.cx, camera.cy, bf) - uvr
+
+
+def stereo_jacobians(
+    p_c: Float[Array, "3"], R_c_w: Float[Array, "3 3"], fx: Array | float, fy: Array | float, bf: Array | float
+) -> tuple[Float[Array, "3 6"], Float[Array, "3 3"]]:
+    """Jacobians of :func:`pinhole_stereo` ∘ ``T_c_w`` w.r.t. ``(ρ, ω)`` and ``p_w``."""
+    J2 = _d_proj_d_pc(p_c, fx, fy)
+    inv_z = 1.0 / p_c[2]
+    # u_r = u − bf/z  ⇒  ∂u_r/∂p_c = ∂u/∂p_c + (0, 0, bf/z²)
+    row = J2[0] + jnp.stack([jnp.zeros_like(inv_z), jnp.zeros_like(inv_z), bf * inv_z * inv_z])
+    J_proj = jnp.concatenate([J2, row[None]], axis=0)
+    return J_proj @ _d_pc_d_pose(p_c), J_proj @ R_c_w
