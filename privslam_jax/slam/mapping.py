@@ -1,0 +1,524 @@
+"""The SLAM map: keyframes, map points with descriptors and observations, triangulation, culling,
+and local bundle adjustment over a sliding keyframe window.
+
+Host-side bookkeeping in growable numpy arrays (the map changes size every keyframe, which a
+jitted pytree cannot do cheaply); the numerical work — local BA — goes to the jitted JAX solver
+in :mod:`privslam_jax.slam.ba` through :func:`solve_local_ba`.
+
+Follows ORB-SLAM3's ``LocalMapping`` (Campos et al. 2021; Mur-Artal & Tardós 2017):
+
+* ``CreateNewMapPoints``: match unmatched keypoints of the new keyframe with its covisible
+  neighbours (Hamming ≤ TH_LOW, ratio 0.6–0.8, rotation consistency), keep pairs within the
+  epipolar band (``d² < 3.84·σ²``), triangulate (DLT), keep points in front of both cameras with
+  reprojection ``χ² < 5.991·σ²`` in both, enough parallax (``cos < 0.9998``) and consistent scale.
+* ``SearchInNeighbors`` (simplified): project the new keyframe's points into its neighbours and
+  add observations to unmatched keypoints (no point merging).
+* ``MapPointCulling``: a point younger than three keyframes is erased when found in fewer than
+  25 % of the frames where it was visible, or when two keyframes later it has fewer than
+  ``min_obs`` observations.
+* ``LocalBundleAdjustment``: the new keyframe and its most covisible neighbours (the window) are
+  optimised with all points they see; the other keyframes that see those points are fixed.
+  Observations with ``χ² > 5.991·σ²`` after BA are removed.
+  ``σ² = scale_factor^(2·octave)`` is the keypoint's pyramid variance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from privslam_jax.slam.frontend import TH_LOW, Features, match_descriptors, search_by_projection
+from privslam_jax.types import Camera, PointCloud
+
+__all__ = ["MappingConfig", "KeyFrame", "Map", "triangulate_new_points", "fuse_into_neighbours",
+           "cull_points", "local_bundle_adjustment", "solve_local_ba", "project", "camera_center"]
+
+CHI2_MONO = 5.991
+"""95 % χ² quantile, 2 DOF."""
+
+
+@dataclasses.dataclass(frozen=True)
+class MappingConfig:
+    """Local-mapping settings."""
+
+    n_neighbours: int = 6
+    """Covisible keyframes used for triangulation and fusion."""
+    window: int = 8
+    """Keyframes optimised by local BA (the new one and its most covisible neighbours)."""
+    max_fixed: int = 12
+    """At most this many fixed keyframes (most covisible first) constrain local BA."""
+    ba_iterations: int = 10
+    """Levenberg–Marquardt iterations of local BA."""
+    tri_ratio: float = 0.75
+    """Ratio test for triangulation matches."""
+    min_parallax_cos: float = 0.9998
+    """Rays must differ by more than ``acos(min_parallax_cos)`` to triangulate (mono)."""
+    min_obs: int = 2
+    """Culling: observations a point needs two keyframes after its birth (ORB-SLAM: 2 mono, 3 stereo)."""
+    found_ratio: float = 0.25
+    """Culling: minimum found/visible ratio of young points."""
+
+
+@dataclasses.dataclass
+class KeyFrame:
+    """A keyframe: pose, features and the map point of each keypoint (``-1`` if none)."""
+
+    id: int
+    frame: int
+    T_c_w: np.ndarray
+    feats: Features
+    point_ids: np.ndarray
+
+    @property
+    def center(self) -> np.ndarray:
+        return camera_center(self.T_c_w)
+
+
+def camera_center(T_c_w: np.ndarray) -> np.ndarray:
+    """Camera centre in the world frame, ``−Rᵀt``."""
+    return -T_c_w[:3, :3].T @ T_c_w[:3, 3]
+
+
+def project(T_c_w: np.ndarray, xyz: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels ``(M, 2)`` and depths ``(M,)`` of world points in a camera."""
+    p = xyz @ T_c_w[:3, :3].T + T_c_w[:3, 3]
+    z = p[:, 2]
+    zs = np.where(np.abs(z) > 1e-9, z, 1e-9)
+    uv = np.stack([camera.fx * p[:, 0] / zs + camera.cx, camera.fy * p[:, 1] / zs + camera.cy], axis=1)
+    return uv, z
+
+
+class _Grow:
+    """A growable numpy array (capacity doubling)."""
+
+    def __init__(self, shape: tuple[int, ...], dtype, fill=0):
+        self.data = np.full((64, *shape), fill, dtype)
+        self.n = 0
+        self.fill = fill
+
+    def extend(self, values: np.ndarray) -> np.ndarray:
+        m = len(values)
+        while self.n + m > len(self.data):
+            new = np.full((2 * len(self.data), *self.data.shape[1:]), self.fill, self.data.dtype)
+            new[: self.n] = self.data[: self.n]
+            self.data = new
+        self.data[self.n: self.n + m] = values
+        self.n += m
+        return np.arange(self.n - m, self.n)
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.data[: self.n]
+
+
+class Map:
+    """Keyframes, map points and their observations (mutable, host side)."""
+
+    def __init__(self, camera: Camera, scale_factor: float = 1.2, n_levels: int = 8):
+        self.camera = camera
+        self.scale_factor = scale_factor
+        self.n_levels = n_levels
+        self.keyframes: list[KeyFrame] = []
+        self._xyz = _Grow((3,), np.float64)
+        self._desc = _Grow((32,), np.uint8)
+        self._n_obs = _Grow((), np.int64)
+        self._visible = _Grow((), np.int64)
+        self._found = _Grow((), np.int64)
+        self._first_kf = _Grow((), np.int64)
+        self._bad = _Grow((), bool)
+        self._max_dist = _Grow((), np.float64)
+        self._normal = _Grow((3,), np.float64)
+        self._obs_kf = _Grow((), np.int64)
+        self._obs_pt = _Grow((), np.int64)
+        self._obs_kp = _Grow((), np.int64)
+        self._obs_ok = _Grow((), bool)
+
+    # ---- views
+    @property
+    def xyz(self) -> np.ndarray:
+        return self._xyz.v
+
+    @property
+    def desc(self) -> np.ndarray:
+        return self._desc.v
+
+    @property
+    def n_obs(self) -> np.ndarray:
+        return self._n_obs.v
+
+    @property
+    def bad(self) -> np.ndarray:
+        return self._bad.v
+
+    @property
+    def visible(self) -> np.ndarray:
+        return self._visible.v
+
+    @property
+    def found(self) -> np.ndarray:
+        return self._found.v
+
+    @property
+    def normal(self) -> np.ndarray:
+        return self._normal.v
+
+    @property
+    def max_dist(self) -> np.ndarray:
+        return self._max_dist.v
+
+    @property
+    def min_dist(self) -> np.ndarray:
+        return self._max_dist.v / self.scale_factor ** (self.n_levels - 1)
+
+    @property
+    def n_points(self) -> int:
+        return self._xyz.n
+
+    def sigma2(self, octave: np.ndarray) -> np.ndarray:
+        return self.scale_factor ** (2.0 * octave)
+
+    # ---- edits
+    def add_keyframe(self, frame: int, T_c_w: np.ndarray, feats: Features, point_ids: np.ndarray) -> KeyFrame:
+        """Append a keyframe and register the observations in ``point_ids`` (``-1`` = none)."""
+        kf = KeyFrame(len(self.keyframes), frame, T_c_w.copy(), feats, np.full(len(feats), -1, np.int64))
+        self.keyframes.append(kf)
+        kp = np.flatnonzero(point_ids >= 0)
+        pid = point_ids[kp]
+        ok = ~self.bad[pid]
+        # a point can be matched once per keyframe
+        _, first = np.unique(pid[ok], return_index=True)
+        self.add_observations(kf, pid[ok][first], kp[ok][first])
+        return kf
+
+    def add_points(self, xyz: np.ndarray, kf: KeyFrame, kp: np.ndarray) -> np.ndarray:
+        """New points first seen in ``kf`` at keypoints ``kp``; returns their ids."""
+        ids = self._xyz.extend(xyz)
+        self._desc.extend(kf.feats.desc[kp])
+        self._n_obs.extend(np.zeros(len(kp), np.int64))
+        self._visible.extend(np.ones(len(kp), np.int64))
+        self._found.extend(np.ones(len(kp), np.int64))
+        self._first_kf.extend(np.full(len(kp), kf.id, np.int64))
+        self._bad.extend(np.zeros(len(kp), bool))
+        d = xyz - kf.center
+        dist = np.linalg.norm(d, axis=1)
+        self._max_dist.extend(dist * self.scale_factor ** kf.feats.octave[kp])
+        self._normal.extend(d / np.maximum(dist, 1e-12)[:, None])
+        self.add_observations(kf, ids, kp)
+        return ids
+
+    def add_observations(self, kf: KeyFrame, pid: np.ndarray, kp: np.ndarray) -> None:
+        if len(pid) == 0:
+            return
+        self._obs_kf.extend(np.full(len(pid), kf.id, np.int64))
+        self._obs_pt.extend(pid)
+        self._obs_kp.extend(kp)
+        self._obs_ok.extend(np.ones(len(pid), bool))
+        kf.point_ids[kp] = pid
+        np.add.at(self._n_obs.data, pid, 1)
+
+    def erase_points(self, pid: np.ndarray) -> None:
+        """Mark points bad and drop all their observations."""
+        if len(pid) == 0:
+            return
+        self._bad.data[pid] = True
+        rows = np.flatnonzero(self._obs_ok.v & self._bad.data[self._obs_pt.v])
+        self._erase_obs_rows(rows)
+
+    def erase_observations(self, rows: np.ndarray) -> None:
+        """Drop observation rows; points left without observations become bad."""
+        self._erase_obs_rows(rows)
+        pts = np.unique(self._obs_pt.v[rows])
+        weak = pts[(self.n_obs[pts] < 1) & ~self.bad[pts]]
+        self._bad.data[weak] = True
+
+    def _erase_obs_rows(self, rows: np.ndarray) -> None:
+        rows = rows[self._obs_ok.v[rows]]
+        if len(rows) == 0:
+            return
+        self._obs_ok.data[rows] = False
+        kf_ids = self._obs_kf.v[rows]
+        kps = self._obs_kp.v[rows]
+        for k in np.unique(kf_ids):
+            sel = kf_ids == k
+            self.keyframes[k].point_ids[kps[sel]] = -1
+        np.add.at(self._n_obs.data, self._obs_pt.v[rows], -1)
+
+    def observations(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Valid observation rows as ``(kf, point, keypoint)`` arrays plus their row ids."""
+        rows = np.flatnonzero(self._obs_ok.v)
+        return rows, self._obs_kf.v[rows], self._obs_pt.v[rows]
+
+    def covisible(self, point_ids: np.ndarray, exclude: int = -1) -> tuple[np.ndarray, np.ndarray]:
+        """Keyframes observing any of ``point_ids``, most shared points first: ``(ids, counts)``."""
+        mask = np.zeros(self.n_points, bool)
+        pid = point_ids[point_ids >= 0]
+        mask[pid] = True
+        sel = self._obs_ok.v & mask[self._obs_pt.v]
+        counts = np.bincount(self._obs_kf.v[sel], minlength=len(self.keyframes))
+        if 0 <= exclude < len(counts):
+            counts[exclude] = 0
+        ids = np.flatnonzero(counts)
+        order = np.lexsort((-ids, -counts[ids]))  # most shared first, newer first on ties
+        return ids[order], counts[ids][order]
+
+    def point_cloud(self) -> PointCloud:
+        """The good map points with their observation counts."""
+        good = ~self.bad & (self.n_obs > 0)
+        return PointCloud(xyz=self.xyz[good].astype(np.float32), observations=self.n_obs[good].astype(np.int32))
+
+
+# ----------------------------------------------------------------------------------------------
+def _fundamental(kf1: KeyFrame, kf2: KeyFrame, K: np.ndarray) -> np.ndarray:
+    """``F₁₂`` with ``x₁ᵀ F₁₂ x₂ = 0`` (pixels of kf1 and kf2)."""
+    T12 = kf1.T_c_w @ np.linalg.inv(kf2.T_c_w)
+    R, t = T12[:3, :3], T12[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    Ki = np.linalg.inv(K)
+    return Ki.T @ tx @ R @ Ki
+
+
+def _triangulate(T1: np.ndarray, T2: np.ndarray, x1: np.ndarray, x2: np.ndarray, K: np.ndarray) -> np.ndarray:
+    P1 = K @ T1[:3]
+    P2 = K @ T2[:3]
+    X = cv2.triangulatePoints(P1, P2, x1.T.astype(np.float64), x2.T.astype(np.float64))
+    w = X[3]
+    w = np.where(np.abs(w) > 1e-12, w, 1e-12)
+    return (X[:3] / w).T
+
+
+def triangulate_new_points(m: Map, kf: KeyFrame, neighbours: list[int], cfg: MappingConfig,
+                           stereo: bool = False) -> int:
+    """ORB-SLAM ``CreateNewMapPoints``: returns the number of points created."""
+    cam = m.camera
+    K = np.asarray(cam.K, np.float64)
+    created = 0
+    C1 = kf.center
+    f1 = kf.feats
+    for nid in neighbours:
+        nb = m.keyframes[nid]
+        base = np.linalg.norm(nb.center - C1)
+        if stereo and cam.baseline is not None:
+            if base < cam.baseline:
+                continue
+        else:
+            valid = nb.point_ids[nb.point_ids >= 0]
+            valid = valid[~m.bad[valid]]
+            if len(valid) == 0:
+                continue
+            _, z = project(nb.T_c_w, m.xyz[valid], cam)
+            if base / max(np.median(z), 1e-9) < 0.01:
+                continue
+        f2 = nb.feats
+        pairs = match_descriptors(f1, f2, ratio=cfg.tri_ratio, max_dist=TH_LOW, check_orientation=True,
+                                  mask_a=kf.point_ids < 0, mask_b=nb.point_ids < 0)
+        if len(pairs) == 0:
+            continue
+        i1, i2 = pairs[:, 0], pairs[:, 1]
+        x1, x2 = f1.uv[i1], f2.uv[i2]
+        s1, s2 = m.sigma2(f1.octave[i1]), m.sigma2(f2.octave[i2])
+        F = _fundamental(kf, nb, K)
+        l2 = np.c_[x1, np.ones(len(x1))] @ F  # epipolar lines in image 2
+        num = (l2 * np.c_[x2, np.ones(len(x2))]).sum(1)
+        d2 = num**2 / np.maximum(l2[:, 0] ** 2 + l2[:, 1] ** 2, 1e-12)
+        ok = d2 < 3.84 * s2
+        i1, i2, x1, x2, s1, s2 = i1[ok], i2[ok], x1[ok], x2[ok], s1[ok], s2[ok]
+        if len(i1) == 0:
+            continue
+        X = _triangulate(kf.T_c_w, nb.T_c_w, x1, x2, K)
+        uv1, z1 = project(kf.T_c_w, X, cam)
+        uv2, z2 = project(nb.T_c_w, X, cam)
+        e1 = ((uv1 - x1) ** 2).sum(1)
+        e2 = ((uv2 - x2) ** 2).sum(1)
+        r1 = X - C1
+        r2 = X - nb.center
+        n1, n2 = np.linalg.norm(r1, axis=1), np.linalg.norm(r2, axis=1)
+        cosp = (r1 * r2).sum(1) / np.maximum(n1 * n2, 1e-12)
+        ratio_dist = n2 / np.maximum(n1, 1e-12)
+        ratio_oct = m.scale_factor ** f1.octave[i1] / m.scale_factor ** f2.octave[i2]
+        rf = 1.5 * m.scale_factor
+        good = (z1 > 0) & (z2 > 0) & (e1 < CHI2_MONO * s1) & (e2 < CHI2_MONO * s2)
+        good &= (cosp < cfg.min_parallax_cos) & (cosp > 0)
+        good &= (ratio_dist * rf >= ratio_oct) & (ratio_dist <= ratio_oct * rf) & np.isfinite(X).all(1)
+        if not good.any():
+            continue
+        ids = m.add_points(X[good], kf, i1[good])
+        m.add_observations(nb, ids, i2[good])
+        created += len(ids)
+    return created
+
+
+def fuse_into_neighbours(m: Map, kf: KeyFrame, neighbours: list[int]) -> int:
+    """Project ``kf``'s points into neighbours; add observations on free matching keypoints."""
+    pid_all = kf.point_ids[kf.point_ids >= 0]
+    pid_all = pid_all[~m.bad[pid_all]]
+    added = 0
+    for nid in neighbours:
+        nb = m.keyframes[nid]
+        seen = np.zeros(m.n_points, bool)
+        seen[nb.point_ids[nb.point_ids >= 0]] = True
+        pid = pid_all[~seen[pid_all]]
+        if len(pid) == 0:
+            continue
+        uv, z = project(nb.T_c_w, m.xyz[pid], m.camera)
+        cam = m.camera
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        dist = np.linalg.norm(m.xyz[pid] - nb.center, axis=1)
+        inside &= (dist >= 0.8 * m.min_dist[pid]) & (dist <= 1.2 * m.max_dist[pid])
+        pid, uv, dist = pid[inside], uv[inside], dist[inside]
+        if len(pid) == 0:
+            continue
+        level = np.clip(np.ceil(np.log(m.max_dist[pid] / dist) / np.log(m.scale_factor)), 0, m.n_levels - 1).astype(np.int64)
+        radius = 3.0 * m.scale_factor**level
+        kp, _ = search_by_projection(uv, m.desc[pid], radius, nb.feats, level - 1, level + 1, max_dist=TH_LOW,
+                                     ratio=1.0, available=nb.point_ids < 0)
+        ok = kp >= 0
+        if ok.any():
+            # reprojection gate
+            e = ((nb.feats.uv[kp[ok]] - uv[ok]) ** 2).sum(1)
+            g = e < CHI2_MONO * m.sigma2(nb.feats.octave[kp[ok]])
+            m.add_observations(nb, pid[ok][g], kp[ok][g])
+            added += int(g.sum())
+    return added
+
+
+def cull_points(m: Map, kf: KeyFrame, cfg: MappingConfig) -> int:
+    """ORB-SLAM ``MapPointCulling`` over points born in the last three keyframes."""
+    n = m.n_points
+    first = m._first_kf.v
+    young = (~m.bad) & (first >= kf.id - 3)
+    ratio = m.found / np.maximum(m.visible, 1)
+    bad = young & (ratio < cfg.found_ratio)
+    bad |= young & (kf.id - first >= 2) & (m.n_obs < cfg.min_obs)
+    bad |= (~m.bad) & (m.n_obs <= 0)
+    ids = np.flatnonzero(bad[:n])
+    m.erase_points(ids)
+    return len(ids)
+
+
+def solve_local_ba(
+    T_c_w: np.ndarray, points: np.ndarray, obs_cam: np.ndarray, obs_pt: np.ndarray, obs_uv: np.ndarray,
+    obs_sigma2: np.ndarray, fixed: np.ndarray, camera: Camera, iterations: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Local BA adapter: ``(K,4,4)`` poses and ``(P,3)`` points in, optimised ones out.
+
+    Huber-robust (δ² = 5.991) reprojection error weighted by ``1/σ²``.
+    """
+    return _ba_scipy(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera, iterations)
+
+
+def _ba_scipy(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera, iterations):
+    """Temporary scipy stand-in (sparse finite-difference Jacobian, TRF, Huber)."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+    from scipy.spatial.transform import Rotation
+
+    free = np.flatnonzero(~fixed)
+    nf, npt = len(free), len(points)
+    free_index = np.full(len(T_c_w), -1, np.int64)
+    free_index[free] = np.arange(nf)
+    rv0 = Rotation.from_matrix(T_c_w[:, :3, :3]).as_rotvec()
+    t0 = T_c_w[:, :3, 3]
+    w = 1.0 / np.sqrt(obs_sigma2)
+
+    def unpack(x):
+        rv, t = rv0.copy(), t0.copy()
+        pp = x[: 6 * nf].reshape(nf, 6)
+        rv[free], t[free] = pp[:, :3], pp[:, 3:]
+        return rv, t, x[6 * nf:].reshape(npt, 3)
+
+    def fun(x):
+        rv, t, X = unpack(x)
+        R = Rotation.from_rotvec(rv[obs_cam])
+        p = R.apply(X[obs_pt]) + t[obs_cam]
+        z = p[:, 2]
+        z = np.where(np.abs(z) > 1e-6, z, 1e-6)
+        u = camera.fx * p[:, 0] / z + camera.cx
+        v = camera.fy * p[:, 1] / z + camera.cy
+        return (np.stack([u - obs_uv[:, 0], v - obs_uv[:, 1]], 1) * w[:, None]).ravel()
+
+    n_obs = len(obs_cam)
+    A = lil_matrix((2 * n_obs, 6 * nf + 3 * npt), dtype=int)
+    r = np.arange(n_obs)
+    fi = free_index[obs_cam]
+    for k in range(6):
+        m = fi >= 0
+        A[2 * r[m], 6 * fi[m] + k] = 1
+        A[2 * r[m] + 1, 6 * fi[m] + k] = 1
+    for k in range(3):
+        A[2 * r, 6 * nf + 3 * obs_pt + k] = 1
+        A[2 * r + 1, 6 * nf + 3 * obs_pt + k] = 1
+    x0 = np.concatenate([np.c_[rv0[free], t0[free]].ravel(), points.ravel()])
+    res = least_squares(fun, x0, jac_sparsity=A, loss="huber", f_scale=np.sqrt(CHI2_MONO), method="trf",
+                        x_scale="jac", max_nfev=iterations, xtol=1e-10, ftol=1e-8)
+    rv, t, X = unpack(res.x)
+    out = T_c_w.copy()
+    out[:, :3, :3] = Rotation.from_rotvec(rv).as_matrix()
+    out[:, :3, 3] = t
+    return out, X
+
+
+def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_min: int = 1) -> dict:
+    """Optimise the window around ``kf`` and drop outlier observations. Returns statistics."""
+    pid_kf = kf.point_ids[kf.point_ids >= 0]
+    cov, _ = m.covisible(pid_kf, exclude=kf.id)
+    local = [kf.id] + [int(i) for i in cov[: cfg.window - 1]]
+    local_set = np.zeros(len(m.keyframes), bool)
+    local_set[local] = True
+    rows, okf, opt = m.observations()
+    pts_mask = np.zeros(m.n_points, bool)
+    pts_mask[opt[local_set[okf]]] = True
+    pts_mask &= ~m.bad
+    sel = pts_mask[opt]
+    fixed_cand = np.bincount(okf[sel & ~local_set[okf]], minlength=len(m.keyframes))
+    fixed_ids = np.flatnonzero(fixed_cand)
+    fixed_ids = fixed_ids[np.lexsort((-fixed_ids, -fixed_cand[fixed_ids]))][: cfg.max_fixed]
+    fixed_list = [int(i) for i in fixed_ids]
+    if len(fixed_list) < n_fixed_min:
+        # gauge: fix the oldest keyframes of the window
+        oldest = sorted(local)[: n_fixed_min - len(fixed_list)]
+        local = [i for i in local if i not in oldest]
+        fixed_list = fixed_list + oldest
+    if 0 in local:  # the first keyframe anchors the map
+        local.remove(0)
+        fixed_list.append(0)
+    cams = local + fixed_list
+    if not local:
+        return {"ba_points": 0}
+    cam_index = np.full(len(m.keyframes), -1, np.int64)
+    cam_index[cams] = np.arange(len(cams))
+    sel &= cam_index[okf] >= 0
+    rows, okf, opt = rows[sel], okf[sel], opt[sel]
+    pids = np.unique(opt)
+    pt_index = np.full(m.n_points, -1, np.int64)
+    pt_index[pids] = np.arange(len(pids))
+    okp = m._obs_kp.v[rows]
+    uv = np.empty((len(rows), 2))
+    oct_ = np.empty(len(rows), np.int64)
+    for k in np.unique(okf):
+        s = okf == k
+        uv[s] = m.keyframes[k].feats.uv[okp[s]]
+        oct_[s] = m.keyframes[k].feats.octave[okp[s]]
+    s2 = m.sigma2(oct_)
+    poses = np.stack([m.keyframes[c].T_c_w for c in cams])
+    fixed = np.zeros(len(cams), bool)
+    fixed[len(local):] = True
+    new_poses, new_pts = solve_local_ba(poses, m.xyz[pids], cam_index[okf], pt_index[opt], uv, s2, fixed,
+                                        m.camera, cfg.ba_iterations)
+    for i, c in enumerate(local):
+        m.keyframes[c].T_c_w = new_poses[i]
+    good_pts = np.isfinite(new_pts).all(1)
+    m._xyz.data[pids[good_pts]] = new_pts[good_pts]
+    # outlier observations
+    proj = np.empty((len(rows), 2))
+    z = np.empty(len(rows))
+    for k in np.unique(okf):
+        s = okf == k
+        proj[s], z[s] = project(m.keyframes[k].T_c_w, m.xyz[opt[s]], m.camera)
+    err = ((proj - uv) ** 2).sum(1) / s2
+    out = (err > CHI2_MONO) | (z <= 0)
+    m.erase_observations(rows[out])
+    # refresh viewing normals of the optimised points
+    return {"ba_points": int(len(pids)), "ba_keyframes": len(local), "ba_fixed": len(fixed_list),
+            "ba_outliers": int(out.sum())}

@@ -1,0 +1,464 @@
+"""The SLAM system: monocular, stereo and RGB-D tracking with synchronous local mapping.
+
+:class:`Slam` runs ORB-SLAM3's tracking and local-mapping loop frame by frame (mapping runs
+synchronously right after a keyframe is chosen, so results do not depend on thread timing):
+
+* **Initialisation** — monocular: two-view geometry (:mod:`.initializer`), full BA, median scene
+  depth scaled to 1; stereo/RGB-D: the first frame with ≥ ``min_init_points`` keypoints with
+  depth becomes a keyframe with one map point per such keypoint.
+* **Tracking** (:mod:`.tracking`) — constant-velocity prediction + projection search, PnP-RANSAC
+  against the reference keyframe when that fails, then the local map; relocalisation against
+  recent keyframes when lost.  A lost frame gets the motion-model prediction and ``tracked=False``.
+* **Keyframes** (ORB-SLAM ``NeedNewKeyFrame`` with an always-idle mapper): a frame becomes a
+  keyframe when it tracks fewer than ``ratio × `` the reference keyframe's well-observed points
+  (0.9 mono, 0.75 stereo/RGB-D) or ``max_frames_between_kf`` frames passed, and (stereo/RGB-D) when
+  it tracks fewer than 100 close points but sees more than 70 untracked close ones.
+* **Mapping** (:mod:`.mapping`) — culling, triangulation, fusion, local BA.
+* **Output** — like ORB-SLAM's ``SaveTrajectory``, each frame's pose is stored relative to its
+  reference keyframe and composed with that keyframe's final (bundle-adjusted) pose.
+
+Determinism: no threads, OpenCV's fixed-seed RANSAC, and correspondence order shuffled by
+``numpy.random.default_rng(seed + …)``: the same input and seed give bit-identical trajectories.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Iterable
+from typing import Any
+
+import cv2
+import numpy as np
+
+from privslam_jax.slam.frontend import Features, OrbConfig, extract_orb, rgbd_depths, stereo_depths, to_gray_u8
+from privslam_jax.slam.initializer import InitConfig, initialize_two_view
+from privslam_jax.slam.mapping import (
+    KeyFrame,
+    Map,
+    MappingConfig,
+    cull_points,
+    fuse_into_neighbours,
+    local_bundle_adjustment,
+    triangulate_new_points,
+)
+from privslam_jax.slam.tracking import (
+    Frame,
+    TrackingConfig,
+    relocalise,
+    track_keyframe_pnp,
+    track_local_map,
+    track_motion_model,
+)
+from privslam_jax.types import Camera, PointCloud, Trajectory
+
+__all__ = ["SlamConfig", "SlamResult", "Slam", "run_slam", "MODES"]
+
+MODES = ("mono", "stereo", "rgbd")
+
+
+@dataclasses.dataclass(frozen=True)
+class SlamConfig:
+    """Settings of the whole system."""
+
+    mode: str = "mono"
+    """``"mono"``, ``"stereo"`` or ``"rgbd"``."""
+    seed: int = 0
+    """Seed of the RANSAC correspondence shuffling (the only randomness)."""
+    orb: OrbConfig = OrbConfig()
+    """Feature extraction."""
+    tracking: TrackingConfig = TrackingConfig()
+    """Tracking."""
+    mapping: MappingConfig = MappingConfig()
+    """Local mapping."""
+    init: InitConfig = InitConfig()
+    """Monocular initialisation."""
+    kf_ratio_mono: float = 0.9
+    """Keyframe when tracked < ratio × reference-keyframe points (monocular)."""
+    kf_ratio_depth: float = 0.75
+    """The same for stereo/RGB-D."""
+    max_frames_between_kf: int = 10
+    """A keyframe at least this often (ORB-SLAM: the frame rate)."""
+    close_depth_baselines: float = 40.0
+    """Stereo: points closer than this many baselines are "close" (ORB-SLAM ``ThDepth``)."""
+    rgbd_close_depth: float = 20.0
+    """RGB-D: close-point depth threshold, metres."""
+    min_init_points: int = 300
+    """Stereo/RGB-D: keypoints with depth needed to initialise."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+
+
+@dataclasses.dataclass
+class SlamResult:
+    """Everything a run produces."""
+
+    trajectory: Trajectory
+    """``T_w_c`` of every frame."""
+    tracked: np.ndarray
+    """``(N,)`` bool: the frame's pose came from tracking (not a motion-model guess)."""
+    keyframe_indices: np.ndarray
+    """``(K,)`` frame index of each keyframe."""
+    keyframe_poses: np.ndarray
+    """``(K, 4, 4)`` keyframe ``T_w_c``."""
+    map: PointCloud
+    """Map points with their keyframe-observation counts."""
+    timings: dict[str, np.ndarray]
+    """Per-frame seconds of each stage (``nan`` where the stage did not run)."""
+    inliers: np.ndarray
+    """``(N,)`` pose inliers per frame."""
+    events: list[str]
+    """Initialisation, loss and relocalisation messages."""
+
+
+class Slam:
+    """Frame-by-frame SLAM (mutable; use :func:`run_slam` for a whole sequence)."""
+
+    def __init__(self, camera: Camera, config: SlamConfig = SlamConfig()):
+        if config.mode == "stereo" and not camera.baseline:
+            raise ValueError("stereo mode needs camera.baseline")
+        if camera.width <= 0 or camera.height <= 0:
+            raise ValueError("camera.width and camera.height must be set")
+        self.camera = camera
+        self.cfg = config
+        self.map = Map(camera, config.orb.scale_factor, config.orb.n_levels)
+        self.frames_rel: list[tuple[int, np.ndarray]] = []  # (ref kf id or -1, T_c_ref or T_c_w)
+        self.tracked: list[bool] = []
+        self.inliers: list[int] = []
+        self.timings: list[dict[str, float]] = []
+        self.events: list[str] = []
+        self.initialized = False
+        self._pending: list[Frame] = []
+        self._last: Frame | None = None
+        self._last_good: Frame | None = None
+        self._velocity: np.ndarray | None = None
+        self._ref_kf: KeyFrame | None = None
+        self._frames_since_kf = 0
+        self._lost_since = 0
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def depth_mode(self) -> bool:
+        return self.cfg.mode in ("stereo", "rgbd")
+
+    def _close_depth(self) -> float:
+        if self.cfg.mode == "stereo":
+            return self.cfg.close_depth_baselines * float(self.camera.baseline)
+        return self.cfg.rgbd_close_depth
+
+    def _record(self, frame: Frame, tracked: bool, n: int) -> None:
+        i = frame.index
+        while len(self.frames_rel) <= i:
+            self.frames_rel.append((-1, np.eye(4)))
+            self.tracked.append(False)
+            self.inliers.append(0)
+        ref = self._ref_kf
+        if ref is None:
+            self.frames_rel[i] = (-1, frame.T_c_w.copy())
+        else:
+            self.frames_rel[i] = (ref.id, frame.T_c_w @ np.linalg.inv(ref.T_c_w))
+        self.tracked[i] = tracked
+        self.inliers[i] = n
+
+    def _pose_now(self, frame: Frame) -> np.ndarray:
+        """Current estimate of a past frame's ``T_c_w`` via its reference keyframe."""
+        ref, T = self.frames_rel[frame.index]
+        return T @ self.map.keyframes[ref].T_c_w if ref >= 0 else T
+
+    # ------------------------------------------------------------------ main entry
+    def track(self, image: np.ndarray, right: np.ndarray | None = None, depth: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+        """Process the next frame; returns its ``T_w_c`` estimate and whether it was tracked."""
+        idx = len(self.timings)
+        tim: dict[str, float] = {}
+        self.timings.append(tim)
+        t0 = time.perf_counter()
+        gray = to_gray_u8(image)
+        if gray.shape != (self.camera.height, self.camera.width):
+            raise ValueError(f"frame {idx}: image shape {gray.shape} != camera (height, width) {self.camera.shape}")
+        feats = extract_orb(gray, self.cfg.orb)
+        tim["extract"] = time.perf_counter() - t0
+        if self.cfg.mode == "stereo":
+            if right is None:
+                raise ValueError(f"frame {idx}: stereo mode needs a right image")
+            t1 = time.perf_counter()
+            gr = to_gray_u8(right)
+            if gr.shape != gray.shape:
+                raise ValueError(f"frame {idx}: right image shape {gr.shape} != left {gray.shape}")
+            fr = extract_orb(gr, self.cfg.orb)
+            feats.depth = stereo_depths(gray, gr, feats, fr, self.camera.fx, float(self.camera.baseline),
+                                        self.cfg.orb.scale_factor)
+            tim["stereo"] = time.perf_counter() - t1
+        elif self.cfg.mode == "rgbd":
+            if depth is None:
+                raise ValueError(f"frame {idx}: rgbd mode needs a depth image")
+            depth = np.asarray(depth)
+            if depth.shape[:2] != gray.shape:
+                raise ValueError(f"frame {idx}: depth shape {depth.shape} != image {gray.shape}")
+            feats.depth = rgbd_depths(depth, feats)
+        frame = Frame(idx, feats)
+        t1 = time.perf_counter()
+        if not self.initialized:
+            self._initialize(frame)
+        else:
+            self._track(frame)
+        tim["track"] = time.perf_counter() - t1 - tim.get("mapping", 0.0)
+        tim["total"] = time.perf_counter() - t0
+        rel = self.frames_rel[idx]
+        T_c_w = rel[1] @ self.map.keyframes[rel[0]].T_c_w if rel[0] >= 0 else rel[1]
+        return np.linalg.inv(T_c_w), self.tracked[idx]
+
+    # ------------------------------------------------------------------ initialisation
+    def _initialize(self, frame: Frame) -> None:
+        if self.depth_mode:
+            ok = np.isfinite(frame.feats.depth) & (frame.feats.depth > 0)
+            if ok.sum() >= self.cfg.min_init_points:
+                frame.T_c_w = np.eye(4)
+                kf = self.map.add_keyframe(frame.index, frame.T_c_w, frame.feats, frame.point_ids)
+                self._create_depth_points(kf, all_points=True)
+                frame.point_ids = kf.point_ids.copy()
+                self._after_init(frame, kf, f"initialised at frame {frame.index} from depth "
+                                            f"({int(ok.sum())} points)")
+            else:
+                frame.T_c_w = np.eye(4)
+                self._pending.append(frame)
+                self._record(frame, False, 0)
+            return
+        if not self._pending:
+            frame.T_c_w = np.eye(4)
+            self._pending.append(frame)
+            self._record(frame, False, 0)
+            return
+        ref = self._pending[0] if self._init_ref is None else self._init_ref
+        res = initialize_two_view(ref.feats, frame.feats, self.camera, self.cfg.seed, self.cfg.init,
+                                  self.cfg.orb.scale_factor)
+        if res is None:
+            frame.T_c_w = np.eye(4)
+            self._pending.append(frame)
+            self._record(frame, False, 0)
+            if frame.index - ref.index > 30:  # ORB-SLAM resets the reference when it gets stale
+                self._init_ref = frame
+            return
+        m = self.map
+        ref.T_c_w = np.eye(4)
+        kf0 = m.add_keyframe(ref.index, np.eye(4), ref.feats, np.full(len(ref.feats), -1, np.int64))
+        kf1 = m.add_keyframe(frame.index, res.T_cur_ref, frame.feats, np.full(len(frame.feats), -1, np.int64))
+        ids = m.add_points(res.xyz, kf0, res.ref_kp)
+        m.add_observations(kf1, ids, res.cur_kp)
+        # global BA of the two-view map, then scale to median depth 1
+        stats = local_bundle_adjustment(m, kf1, dataclasses.replace(self.cfg.mapping, ba_iterations=20))
+        good = kf0.point_ids[kf0.point_ids >= 0]
+        zmed = float(np.median(m.xyz[good][:, 2])) if len(good) else 1.0
+        if not np.isfinite(zmed) or zmed <= 0:
+            zmed = 1.0
+        m._xyz.data[: m.n_points] /= zmed
+        kf1.T_c_w[:3, 3] /= zmed
+        frame.T_c_w = kf1.T_c_w.copy()
+        frame.point_ids = kf1.point_ids.copy()
+        self._after_init(frame, kf1, f"initialised at frames {ref.index}-{frame.index}: {len(good)} points, "
+                                     f"parallax {res.parallax_deg:.2f} deg, BA outliers {stats.get('ba_outliers', 0)}")
+
+    _init_ref: Frame | None = None
+
+    def _after_init(self, frame: Frame, kf: KeyFrame, message: str) -> None:
+        self.initialized = True
+        self.events.append(message)
+        self._ref_kf = kf
+        self._frames_since_kf = 0
+        # poses for frames seen before the map existed
+        for p in self._pending:
+            if p.index == frame.index:
+                continue
+            kf_match = [k.id for k in self.map.keyframes if k.frame == p.index]
+            if kf_match:
+                self._ref_kf = self.map.keyframes[kf_match[0]]
+                p.T_c_w = self._ref_kf.T_c_w.copy()
+                self._record(p, True, int((self._ref_kf.point_ids >= 0).sum()))
+                continue
+            n = track_keyframe_pnp(p, [kf.id], self.map, self.cfg.seed + p.index, self.cfg.tracking)
+            ok = n >= self.cfg.tracking.min_inliers
+            if not ok:
+                p.T_c_w = self.map.keyframes[0].T_c_w.copy()
+            self._ref_kf = kf
+            self._record(p, ok, n)
+        self._ref_kf = kf
+        self._pending = []
+        self._record(frame, True, frame.n_matches)
+        self._last = frame
+        self._last_good = frame
+        self._velocity = None
+        self._lost_since = 0
+
+    def _create_depth_points(self, kf: KeyFrame, all_points: bool = False) -> int:
+        z = kf.feats.depth
+        free = (kf.point_ids < 0) & np.isfinite(z) & (z > 0)
+        idx = np.flatnonzero(free)
+        if not all_points and len(idx):
+            order = idx[np.argsort(z[idx], kind="stable")]
+            close = z[order] < self._close_depth()
+            keep = np.maximum(close.sum(), min(100, len(order)))
+            idx = np.sort(order[:keep])
+        if len(idx) == 0:
+            return 0
+        p_c = np.c_[(kf.feats.uv[idx, 0] - self.camera.cx) / self.camera.fx * z[idx],
+                    (kf.feats.uv[idx, 1] - self.camera.cy) / self.camera.fy * z[idx], z[idx]]
+        T_w_c = np.linalg.inv(kf.T_c_w)
+        xyz = p_c @ T_w_c[:3, :3].T + T_w_c[:3, 3]
+        self.map.add_points(xyz, kf, idx)
+        return len(idx)
+
+    # ------------------------------------------------------------------ tracking
+    def _track(self, frame: Frame) -> None:
+        cfg, m, tim = self.cfg, self.map, self.timings[-1]
+        tcfg = cfg.tracking
+        seed = cfg.seed + 7919 * frame.index
+        last = self._last_good
+        T_last = self._pose_now(last)
+        gap = frame.index - last.index
+        n = 0
+        t = time.perf_counter()
+        if len(frame.feats) >= 10:
+            if self._velocity is not None and self._lost_since <= 5:
+                T_pred = np.linalg.matrix_power(self._velocity, gap) @ T_last
+                radius = tcfg.motion_radius_depth if self.depth_mode else tcfg.motion_radius_mono
+                last.point_ids = np.where(m.bad[np.maximum(last.point_ids, 0)], -1, last.point_ids)
+                n = track_motion_model(frame, last, T_pred, m, radius * (1 if gap == 1 else 2), tcfg)
+            tim["motion"] = time.perf_counter() - t
+            if n < tcfg.min_motion_matches and self._lost_since == 0:
+                t = time.perf_counter()
+                frame.point_ids[:] = -1
+                n = track_keyframe_pnp(frame, [self._ref_kf.id], m, seed, tcfg)
+                tim["pnp"] = time.perf_counter() - t
+            if n < 10 and self._lost_since > 0:
+                t = time.perf_counter()
+                frame.point_ids[:] = -1
+                n = relocalise(frame, m, seed, tcfg)
+                tim["reloc"] = time.perf_counter() - t
+                if n >= tcfg.reloc_min_inliers:
+                    self.events.append(f"relocalised at frame {frame.index} ({n} inliers)")
+            if n >= 10:
+                t = time.perf_counter()
+                n = track_local_map(frame, m, tcfg)
+                tim["local_map"] = time.perf_counter() - t
+        tracked = n >= tcfg.min_inliers
+        if tracked:
+            if gap == 1 and self._lost_since == 0:
+                self._velocity = frame.T_c_w @ np.linalg.inv(T_last)
+            elif self._velocity is None and gap == 1:
+                self._velocity = frame.T_c_w @ np.linalg.inv(T_last)
+            self._lost_since = 0
+            # reference keyframe: the most covisible one
+            kfs, _ = m.covisible(frame.point_ids[frame.point_ids >= 0])
+            if len(kfs):
+                self._ref_kf = m.keyframes[int(kfs[0])]
+            self._frames_since_kf += 1
+            if self._need_keyframe(frame, n):
+                t = time.perf_counter()
+                self._insert_keyframe(frame)
+                tim["mapping"] = time.perf_counter() - t
+            self._record(frame, True, n)
+            self._last_good = frame
+        else:
+            if self._lost_since == 0:
+                self.events.append(f"tracking lost at frame {frame.index} ({n} inliers)")
+            self._lost_since += 1
+            V = self._velocity if self._velocity is not None else np.eye(4)
+            frame.T_c_w = np.linalg.matrix_power(V, gap) @ T_last
+            frame.point_ids[:] = -1
+            self._record(frame, False, n)
+        self._last = frame
+
+    def _need_keyframe(self, frame: Frame, n_tracked: int) -> bool:
+        m, cfg = self.map, self.cfg
+        ref = self._ref_kf
+        min_obs = 2 if len(m.keyframes) <= 2 else 3
+        pid = ref.point_ids[ref.point_ids >= 0]
+        n_ref = int(((m.n_obs[pid] >= min_obs) & ~m.bad[pid]).sum())
+        ratio = cfg.kf_ratio_depth if self.depth_mode else cfg.kf_ratio_mono
+        if len(m.keyframes) < 2:
+            ratio = 0.4
+        c1 = self._frames_since_kf >= cfg.max_frames_between_kf
+        need_close = False
+        if self.depth_mode:
+            z = frame.feats.depth
+            close = np.isfinite(z) & (z > 0) & (z < self._close_depth())
+            tracked_close = int((close & (frame.point_ids >= 0)).sum())
+            untracked_close = int((close & (frame.point_ids < 0)).sum())
+            need_close = tracked_close < 100 and untracked_close > 70
+        c2 = (n_tracked < ratio * n_ref or need_close) and n_tracked > 15
+        return bool(c2 or (c1 and n_tracked > 15))
+
+    def _insert_keyframe(self, frame: Frame) -> None:
+        m, cfg = self.map, self.cfg
+        kf = m.add_keyframe(frame.index, frame.T_c_w, frame.feats, frame.point_ids)
+        self._ref_kf = kf
+        self._frames_since_kf = 0
+        if self.depth_mode:
+            self._create_depth_points(kf)
+        cull_points(m, kf, cfg.mapping)
+        nbs, _ = m.covisible(kf.point_ids[kf.point_ids >= 0], exclude=kf.id)
+        nbs = [int(i) for i in nbs[: cfg.mapping.n_neighbours]]
+        triangulate_new_points(m, kf, nbs, cfg.mapping, stereo=self.depth_mode)
+        fuse_into_neighbours(m, kf, nbs)
+        local_bundle_adjustment(m, kf, cfg.mapping)
+        frame.T_c_w = kf.T_c_w.copy()
+        frame.point_ids = kf.point_ids.copy()
+
+    # ------------------------------------------------------------------ results
+    def result(self, timestamps: np.ndarray | None = None) -> SlamResult:
+        """Trajectory (every frame), keyframes, map and timings so far."""
+        n = len(self.frames_rel)
+        if n == 0:
+            raise ValueError("no frames were processed")
+        T_c_w = np.stack([T @ self.map.keyframes[r].T_c_w if r >= 0 else T for r, T in self.frames_rel])
+        T_w_c = np.linalg.inv(T_c_w)
+        ts = np.arange(n, dtype=np.float64) if timestamps is None else np.asarray(timestamps, np.float64)[:n]
+        keys = sorted({k for t in self.timings for k in t})
+        timings = {k: np.array([t.get(k, np.nan) for t in self.timings]) for k in keys}
+        kfs = self.map.keyframes
+        return SlamResult(
+            trajectory=Trajectory.from_matrices(ts, T_w_c),
+            tracked=np.array(self.tracked, bool),
+            keyframe_indices=np.array([k.frame for k in kfs], np.int64),
+            keyframe_poses=np.stack([np.linalg.inv(k.T_c_w) for k in kfs]) if kfs else np.zeros((0, 4, 4)),
+            map=self.map.point_cloud(),
+            timings=timings,
+            inliers=np.array(self.inliers, np.int64),
+            events=list(self.events),
+        )
+
+
+def run_slam(
+    frames: Iterable[Any],
+    camera: Camera,
+    config: SlamConfig = SlamConfig(),
+    timestamps: np.ndarray | None = None,
+    progress: bool = False,
+    total: int | None = None,
+) -> SlamResult:
+    """Run SLAM over ``frames`` and return every frame's pose, the keyframes and the map.
+
+    ``frames`` yields images (mono), ``(left, right)`` pairs (stereo) or ``(image, depth)`` pairs
+    (RGB-D); images are float ``[0, 1]`` HWC RGB / HW grey or uint8 grey.
+    """
+    cv2.setRNGSeed(config.seed)
+    slam = Slam(camera, config)
+    it = frames
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(frames, total=total, desc=f"slam ({config.mode})", unit="frame")
+    for item in it:
+        if config.mode == "mono":
+            slam.track(item)
+        elif config.mode == "stereo":
+            left, right = item
+            slam.track(left, right=right)
+        else:
+            image, depth = item
+            slam.track(image, depth=depth)
+        if progress:
+            it.set_postfix(kf=len(slam.map.keyframes), pts=int((~slam.map.bad).sum()),
+                           lost=int(len(slam.tracked) - sum(slam.tracked)))
+    return slam.result(timestamps)
