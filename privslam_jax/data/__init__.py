@@ -19,3 +19,13 @@ from privslam_jax.data.trajectory_io import (
     write_kitti_matrices,
     write_tum_matrices,
 )
+from privslam_jax.data.images import read_image, write_rgb, write_uint16
+from privslam_jax.data.kitti import KittiFrame, KittiSequence, read_calib
+from privslam_jax.data.yolo import (
+    YoloDataset,
+    YoloSample,
+    cxcywhn_to_xyxy,
+    read_yolo_labels,
+    write_yolo_labels,
+    xyxy_to_cxcywhn,
+)

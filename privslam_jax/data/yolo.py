@@ -1,0 +1,158 @@
+"""YOLO label files and YOLO dataset folders (the ultralytics layout, e.g. ``coco8``).
+
+Label file (one per image, ``labels/<split>/<stem>.txt``): one object per line,
+``class cx cy w h`` with the box centre and size normalised by the image width/height
+(ultralytics docs, "Dataset formats › Detection").  Lines with more than five numbers are
+segmentation polygons ``class x1 y1 x2 y2 …``; their box is the polygon's bounding box (as
+ultralytics' ``segments2boxes``).  An empty or missing label file means "no objects".
+
+Dataset folder: ``<root>/images/<split>/*.{jpg,png,…}`` with labels found by replacing the
+``images`` folder with ``labels`` and the extension with ``.txt`` (ultralytics ``img2label_paths``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+from jaxtyping import Float, Int
+
+from privslam_jax.data.images import read_image
+
+__all__ = [
+    "read_yolo_labels",
+    "write_yolo_labels",
+    "xyxy_to_cxcywhn",
+    "cxcywhn_to_xyxy",
+    "YoloSample",
+    "YoloDataset",
+]
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def xyxy_to_cxcywhn(boxes: Float[np.ndarray, "K 4"], width: int, height: int) -> Float[np.ndarray, "K 4"]:
+    """Pixel ``xyxy`` boxes → normalised ``cx cy w h``."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    return np.stack(
+        [(b[:, 0] + b[:, 2]) / 2 / width, (b[:, 1] + b[:, 3]) / 2 / height, (b[:, 2] - b[:, 0]) / width, (b[:, 3] - b[:, 1]) / height],
+        axis=1,
+    )
+
+
+def cxcywhn_to_xyxy(boxes: Float[np.ndarray, "K 4"], width: int, height: int) -> Float[np.ndarray, "K 4"]:
+    """Normalised ``cx cy w h`` → pixel ``xyxy`` boxes."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    cx, cy, w, h = b[:, 0] * width, b[:, 1] * height, b[:, 2] * width, b[:, 3] * height
+    return np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], axis=1)
+
+
+def read_yolo_labels(
+    path: str | os.PathLike, missing_ok: bool = False
+) -> tuple[Int[np.ndarray, " K"], Float[np.ndarray, "K 4"]]:
+    """Read a YOLO label file: ``(class_ids int32 (K,), boxes float64 (K, 4) normalised cx cy w h)``.
+
+    ``missing_ok``: a missing file gives zero objects instead of ``FileNotFoundError``.
+    Malformed lines raise ``ValueError`` naming ``file:line``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        if missing_ok:
+            return np.zeros(0, np.int32), np.zeros((0, 4))
+        raise FileNotFoundError(f"label file not found: {path}")
+    cls: list[int] = []
+    boxes: list[list[float]] = []
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        parts = line.split()
+        if not parts:
+            continue
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            raise ValueError(f"{path}:{lineno}: not a number in {line.strip()!r}") from None
+        if len(vals) == 5:
+            box = vals[1:]
+        elif len(vals) >= 7 and len(vals) % 2 == 1:  # polygon: class x1 y1 x2 y2 ...
+            xy = np.asarray(vals[1:]).reshape(-1, 2)
+            lo, hi = xy.min(axis=0), xy.max(axis=0)
+            box = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[0] - lo[0], hi[1] - lo[1]]
+        else:
+            raise ValueError(f"{path}:{lineno}: expected 'class cx cy w h' (5 numbers), got {len(vals)}")
+        if vals[0] != int(vals[0]) or vals[0] < 0:
+            raise ValueError(f"{path}:{lineno}: class id must be a non-negative integer, got {parts[0]}")
+        if not np.all(np.isfinite(box)):
+            raise ValueError(f"{path}:{lineno}: NaN or inf in the box")
+        cls.append(int(vals[0]))
+        boxes.append(box)
+    return np.asarray(cls, np.int32), np.asarray(boxes, np.float64).reshape(-1, 4)
+
+
+def write_yolo_labels(
+    path: str | os.PathLike,
+    class_ids: Int[np.ndarray, " J"],
+    boxes_xyxy: Float[np.ndarray, "K 4"],
+    width: int,
+    height: int,
+) -> None:
+    """Write pixel ``xyxy`` boxes as a YOLO label file (``%.6f``, as ultralytics' converters; empty file for K = 0)."""
+    c = np.asarray(class_ids).reshape(-1)
+    b = np.asarray(boxes_xyxy, np.float64).reshape(-1, 4)
+    if c.shape[0] != b.shape[0]:
+        raise ValueError(f"{c.shape[0]} class ids but {b.shape[0]} boxes for {path}")
+    n = xyxy_to_cxcywhn(b, width, height)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", encoding="utf-8") as f:
+        for k, row in zip(c, n):
+            f.write(f"{int(k)} {row[0]:.6f} {row[1]:.6f} {row[2]:.6f} {row[3]:.6f}\n")
+
+
+@dataclasses.dataclass(frozen=True)
+class YoloSample:
+    """One image of a YOLO dataset with its labels."""
+
+    image: np.ndarray
+    """``(H, W, 3)`` float32 RGB in ``[0, 1]``."""
+    boxes: np.ndarray
+    """``(K, 4)`` float64 ``xyxy`` pixel boxes."""
+    class_ids: np.ndarray
+    """``(K,)`` int32 class ids."""
+    image_path: Path
+    """The image file."""
+    label_path: Path
+    """The label file (may not exist: no objects)."""
+
+
+class YoloDataset:
+    """A YOLO dataset split ``<root>/images/<split>`` + ``<root>/labels/<split>``; images load lazily."""
+
+    def __init__(self, root: str | os.PathLike, split: str = "train") -> None:
+        self.root = Path(root)
+        self.split = split
+        img_dir = self.root / "images" / split
+        if not img_dir.is_dir():
+            raise FileNotFoundError(f"YOLO image folder not found: {img_dir}")
+        self.image_paths = sorted(p for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not self.image_paths:
+            raise ValueError(f"no images in {img_dir}")
+        self.label_paths = [self.root / "labels" / split / (p.stem + ".txt") for p in self.image_paths]
+
+    def __len__(self) -> int:
+        return len(self.image_paths)
+
+    def labels(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(class_ids, normalised cx cy w h)`` of image ``i`` without decoding the image."""
+        return read_yolo_labels(self.label_paths[i], missing_ok=True)
+
+    def __getitem__(self, i: int) -> YoloSample:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"index {i} out of range for {len(self)} images")
+        image = read_image(self.image_paths[i])
+        cls, boxes = self.labels(i)
+        h, w = image.shape[:2]
+        return YoloSample(image, cxcywhn_to_xyxy(boxes, w, h), cls, self.image_paths[i], self.label_paths[i])
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))

@@ -1,0 +1,79 @@
+"""YOLO labels and dataset folders, against plain numpy parsing and OpenCV decoding."""
+
+import cv2
+import numpy as np
+import pytest
+
+from privslam_jax.data.yolo import (
+    YoloDataset,
+    cxcywhn_to_xyxy,
+    read_yolo_labels,
+    write_yolo_labels,
+    xyxy_to_cxcywhn,
+)
+
+
+def test_box_conversions_inverse_and_closed_form():
+    b = np.array([[10.0, 20.0, 50.0, 80.0], [0.0, 0.0, 640.0, 192.0]])
+    n = xyxy_to_cxcywhn(b, 640, 192)
+    np.testing.assert_allclose(n[0], [30 / 640, 50 / 192, 40 / 640, 60 / 192])
+    np.testing.assert_allclose(n[1], [0.5, 0.5, 1.0, 1.0])
+    np.testing.assert_allclose(cxcywhn_to_xyxy(n, 640, 192), b, atol=1e-12)
+
+
+def test_write_read_roundtrip(tmp_path):
+    rng = np.random.default_rng(0)
+    lo = rng.uniform(0, 300, size=(6, 2))
+    b = np.concatenate([lo, lo + rng.uniform(1, 100, size=(6, 2))], axis=1)
+    cls = np.array([0, 2, 2, 7, 1, 5], np.int32)
+    write_yolo_labels(tmp_path / "l.txt", cls, b, 640, 480)
+    rows = np.loadtxt(tmp_path / "l.txt")
+    assert rows.shape == (6, 5)
+    c2, n2 = read_yolo_labels(tmp_path / "l.txt")
+    np.testing.assert_array_equal(c2, cls)
+    np.testing.assert_allclose(cxcywhn_to_xyxy(n2, 640, 480), b, atol=1e-3)  # %.6f of the normalised value
+    write_yolo_labels(tmp_path / "e.txt", np.zeros(0, np.int32), np.zeros((0, 4)), 10, 10)
+    c3, n3 = read_yolo_labels(tmp_path / "e.txt")
+    assert c3.shape == (0,) and n3.shape == (0, 4)
+
+
+def test_polygon_lines_become_bounding_boxes(tmp_path):
+    (tmp_path / "p.txt").write_text("3 0.1 0.2 0.5 0.25 0.3 0.6\n")
+    c, n = read_yolo_labels(tmp_path / "p.txt")
+    assert c.tolist() == [3]
+    np.testing.assert_allclose(n[0], [0.3, 0.4, 0.4, 0.4])
+
+
+def test_coco8_dataset(shared):
+    root = shared / "data/coco8"
+    for split in ("train", "val"):
+        ds = YoloDataset(root, split)
+        assert len(ds) == 4
+        for s in ds:
+            ref = cv2.imread(str(s.image_path))[:, :, ::-1].astype(np.float32) / 255.0
+            np.testing.assert_array_equal(s.image, ref)
+            rows = np.loadtxt(root / "labels" / split / (s.image_path.stem + ".txt"), ndmin=2)
+            h, w = ref.shape[:2]
+            np.testing.assert_array_equal(s.class_ids, rows[:, 0].astype(int))
+            cx, cy, bw, bh = rows[:, 1] * w, rows[:, 2] * h, rows[:, 3] * w, rows[:, 4] * h
+            np.testing.assert_allclose(s.boxes, np.stack([cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2], 1))
+
+
+def test_bad_input(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.txt"):
+        read_yolo_labels(tmp_path / "nope.txt")
+    c, _ = read_yolo_labels(tmp_path / "nope.txt", missing_ok=True)
+    assert c.size == 0
+    (tmp_path / "b.txt").write_text("0 0.5 0.5 0.1 0.1\n1 0.5 0.5 0.1\n")
+    with pytest.raises(ValueError, match=r"b\.txt:2: expected"):
+        read_yolo_labels(tmp_path / "b.txt")
+    (tmp_path / "c.txt").write_text("car 0.5 0.5 0.1 0.1\n")
+    with pytest.raises(ValueError, match=r"c\.txt:1: not a number"):
+        read_yolo_labels(tmp_path / "c.txt")
+    (tmp_path / "d.txt").write_text("1.5 0.5 0.5 0.1 0.1\n")
+    with pytest.raises(ValueError, match=r"d\.txt:1: class id"):
+        read_yolo_labels(tmp_path / "d.txt")
+    with pytest.raises(FileNotFoundError, match="images"):
+        YoloDataset(tmp_path, "train")
+    with pytest.raises(ValueError, match="class ids"):
+        write_yolo_labels(tmp_path / "x.txt", np.zeros(2, np.int32), np.zeros((1, 4)), 10, 10)
