@@ -1,1 +1,33 @@
-"""privslam_jax.detect."""
+"""privslam_jax.detect: YOLOv8 in Flax NNX, ultralytics weight import, decoding and NMS."""
+
+from privslam_jax.detect.decode import box_iou, decode_head, make_anchors, nms, non_max_suppression, scale_boxes
+from privslam_jax.detect.weights import (
+    UnsafeCheckpointError,
+    load_detector,
+    load_state_dict,
+    load_ultralytics,
+    model_state_dict,
+    read_torch_checkpoint,
+    save_checkpoint,
+)
+from privslam_jax.detect.yolov8 import SCALES, YOLOv8, YOLOv8Config, count_parameters
+
+__all__ = [
+    "SCALES",
+    "UnsafeCheckpointError",
+    "YOLOv8",
+    "YOLOv8Config",
+    "box_iou",
+    "count_parameters",
+    "decode_head",
+    "load_detector",
+    "load_state_dict",
+    "load_ultralytics",
+    "make_anchors",
+    "model_state_dict",
+    "nms",
+    "non_max_suppression",
+    "read_torch_checkpoint",
+    "save_checkpoint",
+    "scale_boxes",
+]

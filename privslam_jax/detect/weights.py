@@ -1,0 +1,370 @@
+"""Load ultralytics YOLOv8 checkpoints without torch and without running code from the file.
+
+A torch ``.pt`` file is a zip archive ``<name>/data.pkl`` + ``<name>/data/<key>`` (raw little-endian
+tensor storages) + ``<name>/byteorder``. ``data.pkl`` is a pickle whose globals name torch and
+ultralytics classes. We read it with :class:`RestrictedUnpickler`, whose ``find_class`` resolves
+only an explicit allow-list:
+
+* tensor rebuilding (``torch._utils._rebuild_tensor_v2`` / ``_rebuild_parameter``) → numpy
+  arrays (fp16 storages become float32), storage types ``torch.{Half,Float,Double,…}Storage``
+  (resolved to inert dtype tags), ``torch.Size`` → ``tuple``, ``collections.OrderedDict``,
+  ``builtins.set``, ``_codecs.encode`` (only ``latin1``, as protocol-2 pickles store bytes);
+* module classes under :data:`STUB_MODULE_PREFIXES` (``ultralytics.nn.*``, ``torch.nn.modules.*``)
+  → inert :class:`ModuleStub` subclasses that only record their pickled state. ultralytics and
+  torch are never imported.
+
+Any other global (``os.system``, ``builtins.eval``, ``subprocess.*``…) raises
+:class:`UnsafeCheckpointError` *before* it could be called: pickle resolves a global when the
+``GLOBAL``/``STACK_GLOBAL`` opcode is read, ahead of the ``REDUCE`` that would call it.
+Persistent ids ``("storage", type, key, location, numel)`` are mapped to the raw storages.
+
+The same format is used for our own inference checkpoints (:func:`save_checkpoint`): an ``.npz``
+holding the ultralytics-style ``state_dict`` plus a JSON config, so one key mapping serves both.
+"""
+
+from __future__ import annotations
+
+import collections
+import io
+import json
+import pickle
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from privslam_jax.detect.yolov8 import SCALES, TORCH_LAYER_NAMES, YOLOv8, YOLOv8Config, abstract_yolov8
+
+__all__ = [
+    "UnsafeCheckpointError",
+    "RestrictedUnpickler",
+    "ModuleStub",
+    "read_torch_checkpoint",
+    "ultralytics_state_dict",
+    "load_state_dict",
+    "model_state_dict",
+    "load_ultralytics",
+    "load_detector",
+    "save_checkpoint",
+]
+
+STUB_MODULE_PREFIXES: tuple[str, ...] = ("ultralytics.nn.", "torch.nn.modules.")
+"""Modules whose classes are replaced by inert :class:`ModuleStub` subclasses."""
+
+_STORAGE_DTYPES: dict[str, np.dtype] = {
+    "HalfStorage": np.dtype("<f2"), "FloatStorage": np.dtype("<f4"), "DoubleStorage": np.dtype("<f8"),
+    "LongStorage": np.dtype("<i8"), "IntStorage": np.dtype("<i4"), "ShortStorage": np.dtype("<i2"),
+    "CharStorage": np.dtype("i1"), "ByteStorage": np.dtype("u1"), "BoolStorage": np.dtype("?"),
+}
+
+
+class UnsafeCheckpointError(pickle.UnpicklingError, ValueError):
+    """The checkpoint pickle references something outside the allow-list."""
+
+
+class _StorageType:
+    """Inert stand-in for ``torch.<X>Storage``: only carries the numpy dtype."""
+
+    def __init__(self, name: str):
+        self.name, self.dtype = name, _STORAGE_DTYPES[name]
+
+    def __repr__(self) -> str:
+        return f"torch.{self.name}"
+
+
+class ModuleStub:
+    """Inert stand-in for a pickled torch/ultralytics module: records state, runs nothing."""
+
+    qualname: str = "?"
+
+    def __init__(self, *args: object, **kwargs: object):
+        self.args, self.kwargs = args, kwargs
+
+    def __setstate__(self, state: object) -> None:
+        self.state = state
+
+    def __repr__(self) -> str:
+        return f"<stub {self.qualname}>"
+
+
+def _rebuild_tensor_v2(storage: np.ndarray, offset: int, size: tuple, stride: tuple, *_: object) -> np.ndarray:
+    if not isinstance(storage, np.ndarray):
+        raise UnsafeCheckpointError(f"tensor storage is a {type(storage).__name__}, not a storage")
+    n = int(np.prod(size)) if len(size) else 1
+    if n == 0:
+        out = np.zeros(size, storage.dtype)
+    else:
+        extent = offset + 1 + sum((s - 1) * st for s, st in zip(size, stride))
+        if offset < 0 or extent > storage.size or any(st < 0 for st in stride):
+            raise UnsafeCheckpointError(f"tensor view {size}/{stride}+{offset} exceeds its storage ({storage.size})")
+        item = storage.dtype.itemsize
+        out = np.lib.stride_tricks.as_strided(storage[offset:], size, tuple(st * item for st in stride)).copy()
+    return out.astype(np.float32) if out.dtype == np.float16 else out
+
+
+def _rebuild_parameter(data: np.ndarray, *_: object) -> np.ndarray:
+    return data
+
+
+def _codecs_encode(text: str, encoding: str = "utf-8") -> bytes:
+    if encoding != "latin1" or not isinstance(text, str):
+        raise UnsafeCheckpointError(f"_codecs.encode only allowed with latin1 text, got {encoding!r}")
+    return text.encode("latin1")
+
+
+_ALLOWED: dict[tuple[str, str], object] = {
+    ("torch._utils", "_rebuild_tensor_v2"): _rebuild_tensor_v2,
+    ("torch._utils", "_rebuild_parameter"): _rebuild_parameter,
+    ("collections", "OrderedDict"): collections.OrderedDict,
+    ("torch", "Size"): tuple,
+    ("builtins", "set"): set,
+    ("__builtin__", "set"): set,
+    ("_codecs", "encode"): _codecs_encode,
+    **{("torch", name): _StorageType(name) for name in _STORAGE_DTYPES},
+}
+
+
+class RestrictedUnpickler(pickle.Unpickler):
+    """Unpickler for torch zip checkpoints that resolves only allow-listed globals.
+
+    ``storages(key, dtype, numel)`` returns the raw storage ``key`` as a 1-D numpy array.
+    """
+
+    def __init__(self, file: io.BufferedIOBase, storages):
+        super().__init__(file)
+        self._storages = storages
+        self._stubs: dict[str, type] = {}
+
+    def find_class(self, module: str, name: str) -> object:
+        if (module, name) in _ALLOWED:
+            return _ALLOWED[(module, name)]
+        if module.startswith(STUB_MODULE_PREFIXES) and name.isidentifier() and not name.startswith("_"):
+            qual = f"{module}.{name}"
+            if qual not in self._stubs:
+                self._stubs[qual] = type(name, (ModuleStub,), {"qualname": qual})
+            return self._stubs[qual]
+        raise UnsafeCheckpointError(
+            f"checkpoint references {module}.{name}, which is not on the allow-list of a YOLOv8 "
+            "checkpoint; refusing to load it (it could run arbitrary code)"
+        )
+
+    def persistent_load(self, pid: object) -> np.ndarray:
+        if not (isinstance(pid, tuple) and len(pid) == 5 and pid[0] == "storage"
+                and isinstance(pid[1], _StorageType)):
+            raise UnsafeCheckpointError(f"unexpected persistent id {pid!r}")
+        _, stype, key, _location, numel = pid
+        return self._storages(str(key), stype.dtype, int(numel))
+
+
+def _open_archive(path: Path):
+    """``(read(relpath) -> bytes, prefix)`` for a torch zip or its unzipped folder."""
+    if path.is_dir():
+        candidates = [path] if (path / "data.pkl").is_file() else sorted(p.parent for p in path.glob("*/data.pkl"))
+        if len(candidates) != 1:
+            raise FileNotFoundError(f"{path}: expected one data.pkl (an unzipped torch checkpoint), found {len(candidates)}")
+        root = candidates[0]
+
+        def read(rel: str) -> bytes:
+            f = root / rel
+            if not f.is_file():
+                raise FileNotFoundError(f"{path}: missing {rel} in the unzipped checkpoint")
+            return f.read_bytes()
+
+        return read
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path} is not a torch zip checkpoint (legacy pickle .pt files are not supported)")
+    zf = zipfile.ZipFile(path)
+    pkls = [n for n in zf.namelist() if n.endswith("data.pkl") and n.count("/") == 1]
+    if len(pkls) != 1:
+        raise ValueError(f"{path}: expected one <name>/data.pkl in the archive, found {pkls}")
+    prefix = pkls[0][: -len("data.pkl")]
+
+    def read_zip(rel: str) -> bytes:
+        try:
+            return zf.read(prefix + rel)
+        except KeyError:
+            raise ValueError(f"{path}: archive lacks {prefix + rel}") from None
+
+    return read_zip
+
+
+def read_torch_checkpoint(path: str | Path) -> object:
+    """Unpickle a torch zip checkpoint (file or unzipped folder) safely; tensors → numpy."""
+    path = Path(path)
+    read = _open_archive(path)
+    try:
+        order = read("byteorder").decode().strip()
+    except (FileNotFoundError, ValueError):
+        order = "little"
+    if order != "little":
+        raise ValueError(f"{path}: big-endian checkpoints are not supported")
+
+    def storages(key: str, dtype: np.dtype, numel: int) -> np.ndarray:
+        raw = read(f"data/{key}")
+        if len(raw) < numel * dtype.itemsize:
+            raise ValueError(f"{path}: storage {key} has {len(raw)} bytes, expected {numel * dtype.itemsize}")
+        return np.frombuffer(raw, dtype=dtype, count=numel)
+
+    return RestrictedUnpickler(io.BytesIO(read("data.pkl")), storages).load()
+
+
+def _module_state(stub: object, prefix: str, out: dict[str, np.ndarray]) -> None:
+    state = getattr(stub, "state", None)
+    if not isinstance(state, dict):
+        return
+    for group in ("_parameters", "_buffers"):
+        for name, value in (state.get(group) or {}).items():
+            if isinstance(value, np.ndarray):
+                out[prefix + name] = value
+    for name, child in (state.get("_modules") or {}).items():
+        _module_state(child, f"{prefix}{name}.", out)
+
+
+def ultralytics_state_dict(checkpoint: object) -> tuple[dict[str, np.ndarray], dict[int, str]]:
+    """``(state_dict, class names)`` of the model in an unpickled ultralytics checkpoint.
+
+    Uses ``ckpt["ema"]`` when present, else ``ckpt["model"]``, as ultralytics does.
+    """
+    if not isinstance(checkpoint, dict) or not ({"model", "ema"} & checkpoint.keys()):
+        raise ValueError("not an ultralytics checkpoint: expected a dict with a 'model' entry")
+    model = checkpoint.get("ema") or checkpoint.get("model")
+    if not isinstance(model, ModuleStub):
+        raise ValueError(f"checkpoint 'model' entry is a {type(model).__name__}, not a module")
+    sd: dict[str, np.ndarray] = {}
+    _module_state(model, "", sd)
+    if not sd:
+        raise ValueError("checkpoint model has no parameters")
+    names = model.state.get("names") if isinstance(model.state, dict) else None
+    names = {int(k): str(v) for k, v in (names or {}).items()} if isinstance(names, dict) else {}
+    return sd, names
+
+
+def _config_from_state_dict(sd: Mapping[str, np.ndarray]) -> YOLOv8Config:
+    try:
+        width = sd["model.0.conv.weight"].shape[0]
+        depth = sum(1 for k in sd if k.startswith("model.2.m.") and k.endswith("cv1.conv.weight"))
+        nc = sd["model.22.cv3.0.2.weight"].shape[0]
+        reg_max = sd["model.22.cv2.0.2.weight"].shape[0] // 4
+    except KeyError as err:
+        raise ValueError(f"state_dict is not a YOLOv8 detector (missing {err})") from None
+    for scale in SCALES:
+        cfg = YOLOv8Config(num_classes=nc, scale=scale, reg_max=reg_max)
+        if cfg.channels(64) == width and cfg.depth(3) == depth:
+            return cfg
+    raise ValueError(f"no YOLOv8 scale has stem width {width} and depth {depth}")
+
+
+def _variable(model: YOLOv8, key: str) -> nnx.Variable | None:
+    """The NNX variable for an ultralytics ``state_dict`` key (``None`` for skipped buffers)."""
+    parts = key.split(".")
+    if len(parts) < 3 or parts[0] != "model" or not parts[1].isdigit() or int(parts[1]) not in TORCH_LAYER_NAMES:
+        raise ValueError(f"unexpected state_dict key {key!r}")
+    leaf = parts[-1]
+    if leaf == "num_batches_tracked" or parts[2] == "dfl":
+        return None
+    node: object = getattr(model, TORCH_LAYER_NAMES[int(parts[1])])
+    for p in parts[2:-1]:
+        node = node[int(p)] if p.isdigit() else getattr(node, p, None)
+        if node is None:
+            raise ValueError(f"state_dict key {key!r} does not exist in the model")
+    names = {"bn": {"weight": "scale", "bias": "bias", "running_mean": "mean", "running_var": "var"}}
+    attr = names["bn"].get(leaf) if isinstance(node, nnx.BatchNorm) else {"weight": "kernel", "bias": "bias"}.get(leaf)
+    var = getattr(node, attr, None) if attr else None
+    if not isinstance(var, nnx.Variable):
+        raise ValueError(f"state_dict key {key!r} does not exist in the model")
+    return var
+
+
+def load_state_dict(model: YOLOv8, sd: Mapping[str, np.ndarray]) -> None:
+    """Copy an ultralytics-layout ``state_dict`` into ``model`` in place (strict: every variable set).
+
+    Conv weights ``(O, I, kh, kw)`` become HWIO kernels; BatchNorm ``weight/bias/running_mean/
+    running_var`` become ``scale/bias/mean/var``. The DFL conv must hold ``0..reg_max-1``.
+    """
+    filled: set[int] = set()
+    for key, value in sd.items():
+        arr = np.asarray(value, dtype=np.float32)
+        if key.endswith("dfl.conv.weight"):
+            if not np.array_equal(arr.reshape(-1), np.arange(model.config.reg_max, dtype=np.float32)):
+                raise ValueError(f"{key} is not the fixed DFL projection 0..{model.config.reg_max - 1}")
+            continue
+        var = _variable(model, key)
+        if var is None:
+            continue
+        if arr.ndim == 4:
+            arr = arr.transpose(2, 3, 1, 0)
+        if arr.shape != var.get_value().shape:
+            raise ValueError(f"{key}: shape {arr.shape} does not match the model's {var.get_value().shape}")
+        var.set_value(jnp.asarray(arr))
+        filled.add(id(var))
+    missing = [
+        "/".join(map(str, path))
+        for path, var in nnx.iter_graph(model) if isinstance(var, (nnx.Param, nnx.BatchStat)) and id(var) not in filled
+    ]
+    if missing:
+        raise ValueError(f"state_dict lacks {len(missing)} model variables, e.g. {missing[:3]}")
+
+
+def model_state_dict(model: YOLOv8) -> dict[str, np.ndarray]:
+    """The ultralytics-layout ``state_dict`` of ``model`` (inverse of :func:`load_state_dict`)."""
+    inverse = {v: k for k, v in TORCH_LAYER_NAMES.items()}
+    bn = {"scale": "weight", "bias": "bias", "mean": "running_mean", "var": "running_var"}
+    out: dict[str, np.ndarray] = {}
+    for path, var in nnx.iter_graph(model):
+        if not isinstance(var, (nnx.Param, nnx.BatchStat)):
+            continue
+        parts = [str(p) for p in path]
+        if parts[-2] == "bn":
+            leaf = bn[parts[-1]]
+        else:
+            leaf = "weight" if parts[-1] == "kernel" else parts[-1]
+        arr = np.asarray(var.get_value())
+        if arr.ndim == 4:
+            arr = arr.transpose(3, 2, 0, 1)
+        out[".".join(["model", str(inverse[parts[0]]), *parts[1:-1], leaf])] = arr
+    r = model.config.reg_max
+    out["model.22.dfl.conv.weight"] = np.arange(r, dtype=np.float32).reshape(1, r, 1, 1)
+    return out
+
+
+def _build(sd: Mapping[str, np.ndarray]) -> YOLOv8:
+    model = abstract_yolov8(_config_from_state_dict(sd))
+    load_state_dict(model, sd)
+    model.eval()
+    return model
+
+
+def load_ultralytics(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:
+    """Build a :class:`YOLOv8` (eval mode) from an ultralytics ``.pt`` (zip or unzipped folder).
+
+    Returns the model and the class names stored in the checkpoint.
+    """
+    sd, names = ultralytics_state_dict(read_torch_checkpoint(path))
+    return _build(sd), names
+
+
+def save_checkpoint(model: YOLOv8, path: str | Path, names: Mapping[int, str] | None = None) -> None:
+    """Write an inference checkpoint ``.npz``: ultralytics-layout arrays plus config and names."""
+    meta = {"num_classes": model.config.num_classes, "scale": model.config.scale,
+            "reg_max": model.config.reg_max, "names": {str(k): v for k, v in (names or {}).items()}}
+    np.savez(path, __meta__=np.array(json.dumps(meta)), **model_state_dict(model))
+
+
+def load_detector(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:
+    """Load weights from our ``.npz`` checkpoint or an ultralytics ``.pt`` (file or folder)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"detector weights not found: {path}")
+    if path.suffix == ".npz":
+        with np.load(path, allow_pickle=False) as data:
+            if "__meta__" not in data:
+                raise ValueError(f"{path} is not a privslam detector checkpoint (no __meta__)")
+            meta = json.loads(str(data["__meta__"]))
+            sd = {k: data[k] for k in data.files if k != "__meta__"}
+        return _build(sd), {int(k): v for k, v in meta.get("names", {}).items()}
+    return load_ultralytics(path)

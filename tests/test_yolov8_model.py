@@ -1,0 +1,70 @@
+"""YOLOv8 architecture: parameter counts as ultralytics reports them, shapes, bad input."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from privslam_jax.detect import YOLOv8, YOLOv8Config, count_parameters, decode_head
+from privslam_jax.detect.yolov8 import abstract_yolov8, init_yolov8
+
+
+@pytest.mark.parametrize(
+    ("scale", "nc", "expected"),
+    [
+        # ultralytics model summaries: "YOLOv8n summary: 225 layers, 3,157,200 parameters",
+        # "YOLOv8s summary: 225 layers, 11,166,560 parameters" (80 classes, DFL weight included).
+        ("n", 80, 3_157_200),
+        ("s", 80, 11_166_560),
+    ],
+)
+def test_parameter_count_matches_ultralytics(scale, nc, expected):
+    model = abstract_yolov8(YOLOv8Config(num_classes=nc, scale=scale))
+    assert count_parameters(model) == expected
+
+
+def test_class_count_changes_only_the_class_branch():
+    # Only the class branch depends on nc: c3 = max(64, min(nc, 100)) = 64 for nc <= 64, so the last
+    # 1x1 convs change by (64 + 1)·Δnc per level, and c3 changes from 80 for nc = 80.
+    n6 = count_parameters(abstract_yolov8(YOLOv8Config(num_classes=6)))
+    n7 = count_parameters(abstract_yolov8(YOLOv8Config(num_classes=7)))
+    assert n7 - n6 == 3 * (64 + 1)
+
+
+def test_output_shapes_and_decode():
+    model = init_yolov8(YOLOv8Config(num_classes=3), seed=1)
+    model.eval()
+    x = jnp.asarray(np.random.default_rng(0).random((2, 64, 96, 3), np.float32))
+    graphdef, state = nnx.split(model)
+    feats = jax.jit(lambda st, x: nnx.merge(graphdef, st)(x))(state, x)
+    assert [f.shape for f in feats] == [(2, 8, 12, 67), (2, 4, 6, 67), (2, 2, 3, 67)]
+    out = decode_head(feats)
+    assert out.shape == (2, 8 * 12 + 4 * 6 + 2 * 3, 7)
+    probs = np.asarray(out[..., 4:])
+    assert np.all((probs > 0) & (probs < 1))
+    assert np.all(np.asarray(out[..., 2:4]) > 0)
+
+
+def test_init_matches_module_constructor_distributions():
+    # host-side init vs the NNX constructor: same shapes, same bias constants, kernel bounds 1/sqrt(fan_in)
+    cfg = YOLOv8Config(num_classes=2)
+    host = init_yolov8(cfg, seed=0)
+    ref = abstract_yolov8(cfg)
+    assert jax.tree.map(lambda a: a.shape, nnx.state(host)) == jax.tree.map(lambda a: a.shape, nnx.state(ref))
+    k = np.asarray(host.neck3.cv2.conv.kernel[...])
+    bound = 1 / np.sqrt(np.prod(k.shape[:3]))
+    assert np.abs(k).max() <= bound and np.abs(k).max() > 0.9 * bound
+    np.testing.assert_allclose(np.asarray(host.detect.cv3[2][2].bias[...]), np.log(5 / 2 / 20**2), rtol=1e-6)
+
+
+def test_bad_input_and_config():
+    model = abstract_yolov8(YOLOv8Config(num_classes=1))
+    with pytest.raises(ValueError, match="multiples of 32"):
+        model(jnp.zeros((1, 50, 64, 3)))
+    with pytest.raises(ValueError, match="scale"):
+        YOLOv8Config(scale="q")
+    with pytest.raises(ValueError, match="num_classes"):
+        YOLOv8Config(num_classes=0)

@@ -1,0 +1,138 @@
+"""Ultralytics checkpoint import without torch: restricted unpickler, fp16 → fp32, layouts."""
+
+from __future__ import annotations
+
+import io
+import os
+import pickle
+import zipfile
+from collections import OrderedDict
+
+import numpy as np
+import pytest
+
+from privslam_jax.detect import (
+    UnsafeCheckpointError,
+    YOLOv8Config,
+    count_parameters,
+    load_detector,
+    model_state_dict,
+    read_torch_checkpoint,
+    save_checkpoint,
+)
+from privslam_jax.detect.weights import ultralytics_state_dict
+from privslam_jax.detect.yolov8 import init_yolov8
+
+
+def _zip_with_pickle(path, payload: bytes) -> None:
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("evil/data.pkl", payload)
+        zf.writestr("evil/byteorder", "little")
+
+
+class _SystemCall:
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+class _Eval:
+    def __reduce__(self):
+        return (eval, ("__import__('os').getcwd()",))
+
+
+@pytest.mark.parametrize("protocol", [2, 4])
+def test_malicious_checkpoint_is_rejected_before_running(tmp_path, protocol):
+    marker = tmp_path / "pwned"
+    # Nested inside an otherwise valid-looking checkpoint dict, as an attacker would hide it.
+    payload = pickle.dumps({"model": OrderedDict(x=_SystemCall(marker)), "epoch": -1}, protocol=protocol)
+    ckpt = tmp_path / "evil.pt"
+    _zip_with_pickle(ckpt, payload)
+    with pytest.raises(UnsafeCheckpointError, match="system.*not on the allow-list"):
+        read_torch_checkpoint(ckpt)
+    assert not marker.exists()
+    # the same archive unzipped into a folder
+    folder = tmp_path / "unzipped"
+    zipfile.ZipFile(ckpt).extractall(folder)
+    with pytest.raises(UnsafeCheckpointError):
+        load_detector(folder)
+    assert not marker.exists()
+
+
+def test_builtins_eval_and_private_stub_names_rejected(tmp_path):
+    ckpt = tmp_path / "eval.pt"
+    _zip_with_pickle(ckpt, pickle.dumps([_Eval()], protocol=2))
+    with pytest.raises(UnsafeCheckpointError, match="eval"):
+        read_torch_checkpoint(ckpt)
+    # a global under an allowed module prefix but not a plain class name
+    payload = b"\x80\x02ctorch.nn.modules.conv\n__getattribute__\nq\x00."
+    _zip_with_pickle(ckpt, payload)
+    with pytest.raises(UnsafeCheckpointError):
+        read_torch_checkpoint(ckpt)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.pt"):
+        load_detector(tmp_path / "nope.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a torch zip"):
+        read_torch_checkpoint(bad)
+    ok = tmp_path / "plain.pt"
+    _zip_with_pickle(ok, pickle.dumps({"epoch": 1}, protocol=2))
+    with pytest.raises(ValueError, match="not an ultralytics checkpoint"):
+        ultralytics_state_dict(read_torch_checkpoint(ok))
+
+
+@pytest.fixture(scope="module")
+def yolov8n(shared):
+    path = shared / "weights" / "yolov8n.pt"
+    return path, read_torch_checkpoint(path)
+
+
+def test_real_checkpoint_fp16_to_fp32(yolov8n):
+    path, ckpt = yolov8n
+    sd, names = ultralytics_state_dict(ckpt)
+    assert names[0] == "person" and names[7] == "truck" and len(names) == 80
+    params = {k: v for k, v in sd.items() if "running" not in k and "num_batches" not in k}
+    assert sum(v.size for v in params.values()) == 3_157_200
+    for key, value in params.items():
+        assert value.dtype == np.float32, key
+        # stored as fp16: every value is exactly representable in half precision
+        np.testing.assert_array_equal(value.astype(np.float16).astype(np.float32), value)
+    # raw bytes of one storage, read independently of the unpickler (tensor 0 is the stem conv)
+    w = sd["model.0.conv.weight"]
+    assert w.shape == (16, 3, 3, 3)
+    with zipfile.ZipFile(path) as zf:
+        raws = [np.frombuffer(zf.read(n), "<f2") for n in zf.namelist() if "/data/" in n]
+    assert any(r.size == w.size and np.array_equal(r.astype(np.float32), w.reshape(-1)) for r in raws)
+
+
+def test_state_dict_round_trip_and_our_checkpoint(yolov8n, tmp_path):
+    _, ckpt = yolov8n
+    sd, names = ultralytics_state_dict(ckpt)
+    out = tmp_path / "ours.npz"
+    model = init_yolov8(YOLOv8Config(num_classes=80))
+    from privslam_jax.detect import load_state_dict
+
+    load_state_dict(model, sd)
+    back = model_state_dict(model)
+    assert set(back) == {k for k in sd if not k.endswith("num_batches_tracked")}
+    for k, v in back.items():
+        np.testing.assert_array_equal(v, sd[k])
+    save_checkpoint(model, out, names)
+    model2, names2 = load_detector(out)
+    assert names2 == names and count_parameters(model2) == 3_157_200
+    np.testing.assert_array_equal(np.asarray(model2.detect.cv3[1][2].kernel[...]),
+                                  np.asarray(model.detect.cv3[1][2].kernel[...]))
+
+
+def test_state_dict_shape_mismatch_is_clear(yolov8n):
+    sd, _ = ultralytics_state_dict(yolov8n[1])
+    model = init_yolov8(YOLOv8Config(num_classes=3))
+    from privslam_jax.detect import load_state_dict
+
+    with pytest.raises(ValueError, match=r"model\.22\.cv3\.0\..*: shape .* does not match"):
+        load_state_dict(model, sd)
