@@ -36,10 +36,10 @@ class _FakeSequence:
                     image=rng.random((h, w, 3)).astype(np.float32),
                     image_right=rng.random((h, w, 3)).astype(np.float32) if stereo else None,
                     depth=rng.uniform(1.0, 80.0, (h, w)).astype(np.float32),
-                    depth_right=None,
+                    depth_right=rng.uniform(1.0, 300.0, (h, w)).astype(np.float32) if stereo else None,
                     instance_ids=ids,
                     background=rng.random((h, w, 3)).astype(np.float32),
-                    background_right=None,
+                    background_right=rng.random((h, w, 3)).astype(np.float32) if stereo else None,
                     boxes=boxes,
                     class_ids=np.array([0, 2], np.int32),
                     instance_of_box=np.array([1, 2], np.int32),
@@ -72,6 +72,13 @@ def _check_roundtrip(seq, seq_dir, stereo):
         np.testing.assert_allclose(g.background, q(f.background), atol=1e-6)
         if stereo:
             np.testing.assert_allclose(g.image_right, q(f.image_right), atol=1e-6)
+            np.testing.assert_allclose(g.background_right, q(f.background_right), atol=1e-6)
+            dr = np.asarray(f.depth_right)
+            far = dr >= 256.0
+            np.testing.assert_allclose(g.depth_right[~far], dr[~far], atol=0.5 / 256 + 1e-6)
+            assert np.all(g.depth_right[far] == 0)  # beyond the 16-bit range: "no depth"
+        else:
+            assert g.depth_right is None and g.background_right is None
         np.testing.assert_array_equal(g.instance_ids, np.asarray(f.instance_ids))
         d = np.asarray(f.depth)
         ok = d < 255.0

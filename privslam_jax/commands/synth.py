@@ -10,6 +10,7 @@ Written layout (read back by :class:`privslam_jax.data.kitti.KittiSequence`; doc
                        masks/%06d.png        uint16 instance ids (0 = no privacy object)
                        instance_classes.json {"<instance id>": <COCO class id>}
                        background/%06d.png   the same frame rendered without the privacy objects (RGB)
+                       depth_3/, background_3/  the same for the right camera (only with --stereo)
                        labels/%06d.txt       YOLO boxes: class cx cy w h (normalised)
     DIR/poses/NAME.txt                       ground truth T_w_c of the left camera, KITTI 3×4 per line
 
@@ -92,6 +93,11 @@ def write_kitti_sequence(
             raise ValueError(f"instance id {int(ids.max())} does not fit the 16-bit mask PNG")
         write_uint16(seq_dir / "masks" / f"{stem}.png", ids)
         write_rgb(seq_dir / "background" / f"{stem}.png", np.asarray(f.background))
+        if getattr(f, "image_right", None) is not None:
+            if getattr(f, "depth_right", None) is not None:
+                write_uint16(seq_dir / "depth_3" / f"{stem}.png", _depth_png(f.depth_right))
+            if getattr(f, "background_right", None) is not None:
+                write_rgb(seq_dir / "background_3" / f"{stem}.png", np.asarray(f.background_right))
         h, w = ids.shape
         write_yolo_labels(
             seq_dir / "labels" / f"{stem}.txt", np.asarray(f.class_ids, np.int32), np.asarray(f.boxes, np.float64), w, h

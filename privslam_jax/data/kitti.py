@@ -14,7 +14,8 @@ Extras written by ``privslam synth`` (read when present, ``None`` otherwise; see
 ``depth/%06d.png`` (uint16, metres × 256, 0 = no depth: the KITTI depth-benchmark convention),
 ``masks/%06d.png`` (uint16 instance ids, 0 = none) with ``instance_classes.json``
 (``{"<instance id>": <COCO class id>}``), ``background/%06d.png`` (the frame without the privacy
-objects) and ``labels/%06d.txt`` (YOLO, normalised ``class cx cy w h``).
+objects) and ``labels/%06d.txt`` (YOLO, normalised ``class cx cy w h``); with stereo also
+``depth_3/`` and ``background_3/`` for the right camera.
 
 Frames are the PNG files of the left image folder in sorted order; frame *numbers* are their file
 stems.  Timestamps and poses are indexed by frame number, so a folder holding only some frames of
@@ -101,6 +102,10 @@ class KittiFrame:
     """``(H, W)`` int32 instance ids, 0 = no privacy object (synth extra ``masks/``)."""
     background: np.ndarray | None = None
     """``(H, W, 3)`` float32 RGB object-free render (synth extra ``background/``)."""
+    depth_right: np.ndarray | None = None
+    """Right-camera depth (synth extra ``depth_3/``, stereo only)."""
+    background_right: np.ndarray | None = None
+    """Right-camera object-free render (synth extra ``background_3/``, stereo only)."""
     boxes: np.ndarray | None = None
     """``(K, 4)`` float64 xyxy pixel boxes (synth extra ``labels/``)."""
     class_ids: np.ndarray | None = None
@@ -262,13 +267,20 @@ class KittiSequence:
             raise ValueError(f"{p}: size {m.shape} differs from the images {self.camera.shape}")
         return m
 
+    def _read_depth(self, p: Path) -> np.ndarray:
+        return (self._read_map(p).astype(np.float32) / np.float32(DEPTH_SCALE)).astype(np.float32)
+
     def __getitem__(self, i: int) -> KittiFrame:
         i = self._check(i)
         image = self.image(i)
         right = self.image(i, right=True) if self.stereo else None
-        depth = ids = background = boxes = class_ids = None
+        depth = ids = background = boxes = class_ids = depth_r = background_r = None
         if (p := self._extra("depth", i)) is not None:
-            depth = (self._read_map(p).astype(np.float32) / np.float32(DEPTH_SCALE)).astype(np.float32)
+            depth = self._read_depth(p)
+        if self.stereo and (p := self._extra("depth_3", i)) is not None:
+            depth_r = self._read_depth(p)
+        if self.stereo and (p := self._extra("background_3", i)) is not None:
+            background_r = read_image(p, grey=self.grey)
         if (p := self._extra("masks", i)) is not None:
             ids = self._read_map(p).astype(np.int32)
         if (p := self._extra("background", i)) is not None:
@@ -286,6 +298,8 @@ class KittiSequence:
             depth=depth,
             instance_ids=ids,
             background=background,
+            depth_right=depth_r,
+            background_right=background_r,
             boxes=boxes,
             class_ids=class_ids,
         )
