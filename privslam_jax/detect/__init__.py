@@ -1,6 +1,7 @@
 """privslam_jax.detect: YOLOv8 in Flax NNX, ultralytics weight import, decoding and NMS."""
 
 from privslam_jax.detect.decode import box_iou, decode_head, make_anchors, nms, non_max_suppression, scale_boxes
+from privslam_jax.detect.predict import PRIVACY_CLASSES, PRIVACY_PRESET, Detector, DetectorConfig, letterbox
 from privslam_jax.detect.weights import (
     UnsafeCheckpointError,
     load_detector,
@@ -13,6 +14,11 @@ from privslam_jax.detect.weights import (
 from privslam_jax.detect.yolov8 import SCALES, YOLOv8, YOLOv8Config, count_parameters
 
 __all__ = [
+    "PRIVACY_CLASSES",
+    "PRIVACY_PRESET",
+    "Detector",
+    "DetectorConfig",
+    "letterbox",
     "SCALES",
     "UnsafeCheckpointError",
     "YOLOv8",
