@@ -21,6 +21,15 @@ from privslam_jax.inpaint.filter import (
     edgeconnect_forward,
     filter_frame,
 )
+from privslam_jax.inpaint.losses import (
+    discriminator_loss,
+    feature_matching_loss,
+    generator_adversarial_loss,
+    gram,
+    l1_hole_loss,
+    perceptual_loss,
+    style_loss,
+)
 from privslam_jax.inpaint.masks import (
     boxes_to_masks,
     dilate,
@@ -42,7 +51,18 @@ __all__ = [
     "CropBox",
     "Inpainter",
     "InpainterConfig",
+    "InpaintTrainer",
+    "TrainConfig",
     "boxes_to_masks",
+    "discriminator_loss",
+    "feature_matching_loss",
+    "generator_adversarial_loss",
+    "gram",
+    "l1_hole_loss",
+    "perceptual_loss",
+    "prepare_batch",
+    "style_loss",
+    "train",
     "crop_box",
     "dilate",
     "edge_band",
@@ -70,3 +90,5 @@ __all__ = [
     "load_npz",
     "load_state_dict",
 ]
+
+from privslam_jax.inpaint.train import InpaintTrainer, TrainConfig, prepare_batch, train  # noqa: E402
