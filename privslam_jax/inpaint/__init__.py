@@ -62,7 +62,6 @@ __all__ = [
     "perceptual_loss",
     "prepare_batch",
     "style_loss",
-    "train",
     "crop_box",
     "dilate",
     "edge_band",
@@ -91,4 +90,5 @@ __all__ = [
     "load_state_dict",
 ]
 
-from privslam_jax.inpaint.train import InpaintTrainer, TrainConfig, prepare_batch, train  # noqa: E402
+# ``train`` itself stays in privslam_jax.inpaint.train (a same-named attribute would shadow the module)
+from privslam_jax.inpaint.train import InpaintTrainer, TrainConfig, prepare_batch  # noqa: E402
