@@ -1,1 +1,9 @@
 """privslam_jax.attacks."""
+
+from privslam_jax.attacks.line2point import (
+    Line2PointConfig,
+    get_peak,
+    line2point,
+    num_coarse_neighbours,
+    select_smallest,
+)

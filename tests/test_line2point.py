@@ -1,0 +1,81 @@
+"""Line2Point in JAX against the plain numpy re-implementation of the authors' code (tests/line2point_reference.py)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from privslam_jax.attacks.line2point import Line2PointConfig, get_peak, line2point, num_coarse_neighbours, select_smallest
+from privslam_jax.privacy.lift import fixed_key, random_lift
+from privslam_jax.types import LineCloud
+
+sys.path.insert(0, str(Path(__file__).parent))
+import line2point_reference as ref  # noqa: E402
+
+
+def street_points(n: int, seed: int) -> np.ndarray:
+    """Two noisy façades and a road: a sparse SLAM-like map."""
+    rng = np.random.default_rng(seed)
+    k = n // 3
+    fac1 = np.stack([rng.uniform(-40, 40, k), np.full(k, -6.0) + rng.normal(0, 0.1, k), rng.uniform(0, 10, k)], 1)
+    fac2 = np.stack([rng.uniform(-40, 40, k), np.full(k, 6.0) + rng.normal(0, 0.1, k), rng.uniform(0, 10, k)], 1)
+    m = n - 2 * k
+    road = np.stack([rng.uniform(-40, 40, m), rng.uniform(-6, 6, m), rng.normal(0, 0.05, m)], 1)
+    return np.concatenate([fac1, fac2, road])
+
+
+def test_matches_numpy_reference_n2000():
+    pts = street_points(2000, 0)
+    with jax.enable_x64(True):
+        lines = random_lift(jnp.asarray(pts), fixed_key(1))
+        rec, t = line2point(lines)
+        rec, t = np.asarray(rec), np.asarray(t)
+        d = np.asarray(lines.directions)
+        a = np.cross(d, np.asarray(lines.moments))
+    assert rec.dtype == np.float64
+    ref_pts, ref_t = ref.line2point_reference(a, d, num_refine_iterations=2)
+    np.testing.assert_allclose(rec, ref_pts, atol=1e-6, rtol=0)
+    # the attack works at all: much better than the anchor (closest point to the origin)
+    err = np.linalg.norm(rec - pts, axis=1)
+    assert np.median(err) < 0.5 * np.median(np.linalg.norm(a - pts, axis=1))
+
+
+def test_peak_finder_matches_reference_on_random_sets():
+    rng = np.random.default_rng(3)
+    gp = jax.jit(get_peak)
+    with jax.enable_x64(True):
+        for trial in range(60):
+            m = int(rng.integers(3, 150))
+            if trial % 3 == 0:
+                e = rng.standard_cauchy(m)
+            elif trial % 3 == 1:
+                e = np.concatenate([rng.normal(2.0, 0.3, m), rng.uniform(-30, 30, 2 * m)])
+            else:
+                e = np.round(rng.normal(0, 3, m), 1)  # many exact ties
+            valid = np.zeros(450, bool)
+            valid[: len(e)] = True
+            padded = np.concatenate([e, rng.normal(size=450 - len(e))])
+            got = float(gp(jnp.asarray(padded), jnp.asarray(valid)))
+            assert got == pytest.approx(ref.get_peak(e), abs=1e-9), (trial, len(e))
+
+
+def test_select_smallest_is_stable_argsort():
+    rng = np.random.default_rng(4)
+    v = np.round(rng.uniform(0, 5, 3000), 1).astype(np.float32)  # heavy ties
+    for k in (1, 37, 150):
+        got = np.asarray(select_smallest(jnp.asarray(v), k))
+        np.testing.assert_array_equal(np.sort(got), np.sort(np.argsort(v, kind="stable")[:k]))
+
+
+def test_neighbour_count_and_errors():
+    assert num_coarse_neighbours(2000) == 100 and num_coarse_neighbours(20000) == 500
+    assert num_coarse_neighbours(100000) == 500
+    with pytest.raises(ValueError, match="NaN"):
+        line2point(LineCloud(directions=jnp.zeros((5, 3)), moments=jnp.zeros((5, 3))), Line2PointConfig(num_refine_iterations=0))
+    with pytest.raises(ValueError, match="at least 2"):
+        line2point(LineCloud(directions=jnp.ones((1, 3)), moments=jnp.zeros((1, 3))))
