@@ -1,5 +1,6 @@
 """privslam_jax.attacks."""
 
+from privslam_jax.attacks.gradient import GradientAttackConfig, consistency_energy, gradient_attack, line_neighbours
 from privslam_jax.attacks.line2point import (
     Line2PointConfig,
     get_peak,
