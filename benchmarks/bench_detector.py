@@ -1,0 +1,112 @@
+"""Benchmark: jitted YOLOv8n forward latency (batch 1) at 192×640, 384×1248 and 640×640.
+
+Command: ``python benchmarks/bench_detector.py [--weights PATH] [--runs 20]``
+
+Prints, per input size, the compile time of the jitted forward (network + DFL decode) and the
+median / min latency of ``--runs`` runs after compilation. When ``torch`` and ``ultralytics`` are
+importable, the ultralytics model (same checkpoint, ``eval()``, ``torch.inference_mode``, fused
+Conv+BN as ultralytics' predictor uses it) is timed in the same run, interleaved with ours, and
+the ratio ours/ultralytics is printed (goal ≤ 1.0 on CPU). Without weights a randomly
+initialised YOLOv8n (80 classes) is timed (same compute).
+
+XLA flags are set as the CLI sets them (``privslam_jax._xla``) before jax is imported.
+On a shared machine the numbers are noisy: report the load alongside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from privslam_jax._xla import configure_xla  # noqa: E402
+
+configure_xla()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from flax import nnx  # noqa: E402
+
+from privslam_jax._shared import shared_dir  # noqa: E402
+from privslam_jax.detect.decode import decode_head  # noqa: E402
+from privslam_jax.detect.weights import load_ultralytics  # noqa: E402
+from privslam_jax.detect.yolov8 import YOLOv8Config, init_yolov8  # noqa: E402
+
+SIZES = ((192, 640), (384, 1248), (640, 640))
+
+
+def _ultralytics_model(weights: Path | None):
+    try:
+        import torch
+        from ultralytics import YOLO
+    except Exception as err:  # noqa: BLE001 - optional reference
+        return None, f"ultralytics not importable ({type(err).__name__}: {err})"
+    if weights is None:
+        return None, "ultralytics reference needs --weights"
+    model = YOLO(str(weights)).model.float().eval()
+    model = model.fuse(verbose=False) if hasattr(model, "fuse") else model
+
+    def run(x: np.ndarray):
+        with torch.inference_mode():
+            return model(torch.from_numpy(x.transpose(0, 3, 1, 2).copy()))
+
+    return run, f"torch {torch.__version__}, {torch.get_num_threads()} threads"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    default = shared_dir() / "weights" / "yolov8n.pt" if shared_dir() else None
+    parser.add_argument("--weights", type=Path, default=default if default and default.exists() else None)
+    parser.add_argument("--runs", type=int, default=20)
+    args = parser.parse_args()
+
+    model = load_ultralytics(args.weights)[0] if args.weights else init_yolov8(YOLOv8Config())
+    model.eval()
+    graphdef, state = nnx.split(model)
+    forward = jax.jit(lambda st, x: decode_head(nnx.merge(graphdef, st)(x)))
+    torch_run, torch_info = _ultralytics_model(args.weights)
+
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform}, XLA_FLAGS={os.environ.get('XLA_FLAGS')!r}, "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"reference: {torch_info}")
+    print(f"weights: {args.weights or 'random init'}; batch 1; median of {args.runs} runs after compile\n")
+    header = f"{'input':>10} | {'compile s':>9} | {'ours ms (med/min)':>17} | {'ultralytics ms':>14} | {'ratio':>5}"
+    print(header)
+    print("-" * len(header))
+    rng = np.random.default_rng(0)
+    for h, w in SIZES:
+        x = rng.random((1, h, w, 3), np.float32)
+        xj = jnp.asarray(x)
+        t0 = time.perf_counter()
+        forward.lower(state, xj).compile()
+        compile_s = time.perf_counter() - t0
+        forward(state, xj).block_until_ready()
+        ours, ref = [], []
+        if torch_run is not None:
+            torch_run(x)  # warm-up
+        for _ in range(args.runs):  # interleaved so both see the same machine load
+            t0 = time.perf_counter()
+            forward(state, xj).block_until_ready()
+            ours.append(time.perf_counter() - t0)
+            if torch_run is not None:
+                t0 = time.perf_counter()
+                torch_run(x)
+                ref.append(time.perf_counter() - t0)
+        med = statistics.median(ours) * 1e3
+        line = f"{h:>4}x{w:<5} | {compile_s:>9.2f} | {med:>8.1f} / {min(ours) * 1e3:>6.1f} |"
+        if ref:
+            rmed = statistics.median(ref) * 1e3
+            line += f" {rmed:>14.1f} | {med / rmed:>5.2f}"
+        else:
+            line += f" {'-':>14} | {'-':>5}"
+        print(line)
+
+
+if __name__ == "__main__":
+    main()
