@@ -1,0 +1,156 @@
+"""Table 3 of the source paper, redone honestly: how much of a map do line-cloud attacks recover?
+
+Goal: for the random lift and paired-point lifting, attacked by Line2Point (faithful to Chelani
+et al.'s code) and by the gradient attack, report every metric of ``privslam_jax.metrics.privacy``
+(the paper's mean nearest-neighbour distance, per-point errors with known correspondences,
+Chamfer) with the no-attack baselines beside them, on
+  (a) a sparse SLAM-like map: ORB keypoints of the synthetic street world (object-free renders,
+      so only static surfaces) back-projected with the true depth and pose, voxel-deduplicated;
+  (b) the real KITTI ``seq1`` map: the 15,698 COLMAP points of
+      ``../shared/reference/ba/kitti_seq1_colmap_optimum.bal.txt.bz2`` (skipped when absent).
+
+Command:   python experiments/table3_line2point.py            (writes results/table3_line2point.md)
+Runtime:   ~10–20 min on 2 shared CPU cores (Line2Point on ~15k lines ≈ 1 min per run).
+Expected:  on KITTI a faithful Line2Point recovers a large share of the random-lifted map within
+           0.5 m, while the paper's NN metric looks similar for attack and no attack; paired-point
+           lifting defeats it.  Lift keys are fixed seeds (explicit, for reproducibility only).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from privslam_jax._xla import configure_xla  # noqa: E402
+
+configure_xla()
+
+import cv2  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from privslam_jax._shared import shared_dir  # noqa: E402
+from privslam_jax.attacks.gradient import GradientAttackConfig, gradient_attack  # noqa: E402
+from privslam_jax.attacks.line2point import Line2PointConfig, line2point  # noqa: E402
+from privslam_jax.metrics.privacy import baseline_points, point_recovery_metrics  # noqa: E402
+from privslam_jax.privacy.lift import fixed_key, paired_lift, random_lift  # noqa: E402
+
+
+def get_config() -> dict:
+    return {
+        "synthetic_frames": 60,  # frames of the synthetic sequence used for the map
+        "synthetic_stride": 2,  # every 2nd frame contributes keypoints
+        "orb_features": 500,  # per frame (OpenCV default)
+        "max_depth": 40.0,  # metres, like a SLAM map's far points
+        "voxel": 0.05,  # dedupe points closer than this (a map point is observed once)
+        "lift_seed": 0,
+        "line2point": Line2PointConfig(num_refine_iterations=2),
+        "gradient": GradientAttackConfig(),
+        "out": ROOT / "results" / "table3_line2point.md",
+    }
+
+
+def synthetic_map(cfg: dict) -> np.ndarray:
+    """Sparse map from the synthetic world: ORB keypoints on object-free renders, back-projected."""
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence
+
+    seq = make_sequence(SynthConfig(num_frames=cfg["synthetic_frames"], object_density=0.0, seed=0))
+    cam = seq.camera
+    orb = cv2.ORB_create(nfeatures=cfg["orb_features"])
+    pts = []
+    for i in range(0, len(seq), cfg["synthetic_stride"]):
+        f = seq[i]
+        grey = cv2.cvtColor((np.clip(f.background, 0, 1) * 255).astype(np.uint8), cv2.COLOR_RGB2GRAY)
+        kps = orb.detect(grey, None)
+        if not kps:
+            continue
+        uv = np.array([k.pt for k in kps])
+        z = f.background_depth if f.background_depth is not None else f.depth
+        zz = z[np.clip(np.rint(uv[:, 1]).astype(int), 0, z.shape[0] - 1), np.clip(np.rint(uv[:, 0]).astype(int), 0, z.shape[1] - 1)]
+        ok = (zz > 0) & (zz < cfg["max_depth"])
+        uv, zz = uv[ok], zz[ok]
+        p_c = np.stack([(uv[:, 0] - cam.cx) / cam.fx * zz, (uv[:, 1] - cam.cy) / cam.fy * zz, zz], 1)
+        T = f.T_w_c
+        pts.append(p_c @ T[:3, :3].T + T[:3, 3])
+    p = np.concatenate(pts)
+    _, keep = np.unique(np.floor(p / cfg["voxel"]).astype(np.int64), axis=0, return_index=True)
+    return p[np.sort(keep)]
+
+
+def kitti_map() -> np.ndarray | None:
+    shared = shared_dir()
+    path = None if shared is None else shared / "reference" / "ba" / "kitti_seq1_colmap_optimum.bal.txt.bz2"
+    if path is None or not path.is_file():
+        return None
+    from privslam_jax.data.bal import read_bal
+
+    return np.asarray(read_bal(path).points, np.float64)
+
+
+KEYS = ("nn_mean", "per_point_median", "per_point_mean", "within_0.1", "within_0.5", "within_1.0", "chamfer")
+
+
+def evaluate(points: np.ndarray, cfg: dict, scene: str) -> list[tuple]:
+    rows = []
+    for lift_name, lift in (("random", random_lift), ("paired", paired_lift)):
+        lines = lift(jnp.asarray(points, jnp.float32), fixed_key(cfg["lift_seed"]))
+        for rule in ("closest", "uniform"):
+            rows.append((scene, lift_name, f"no attack ({rule})", point_recovery_metrics(points, baseline_points(lines, rule)), 0.0))
+        t0 = time.perf_counter()
+        rec, _ = line2point(lines, cfg["line2point"], progress=True)
+        rec = np.asarray(jax.block_until_ready(rec))
+        rows.append((scene, lift_name, "Line2Point", point_recovery_metrics(points, rec), time.perf_counter() - t0))
+        t0 = time.perf_counter()
+        rec, _ = gradient_attack(lines, cfg["gradient"])
+        rec = np.asarray(jax.block_until_ready(rec))
+        rows.append((scene, lift_name, "gradient", point_recovery_metrics(points, rec), time.perf_counter() - t0))
+        for r in rows[-4:]:
+            print(r[0], r[1], r[2], {k: round(r[3][k], 3) for k in KEYS}, f"{r[4]:.1f}s", flush=True)
+    return rows
+
+
+def main() -> None:
+    cfg = get_config()
+    scenes = []
+    syn = synthetic_map(cfg)
+    scenes.append(("synthetic", syn, f"synthetic street world, {len(syn)} ORB map points (seed 0, {cfg['synthetic_frames']} frames, no objects)"))
+    kit = kitti_map()
+    if kit is not None:
+        scenes.append(("KITTI seq1", kit, f"KITTI seq1 COLMAP map, {len(kit)} points"))
+    rows = []
+    for name, pts, _ in scenes:
+        rows += evaluate(pts, cfg, name)
+    lines = [
+        "# Table 3 redone: point recovery from line clouds",
+        "",
+        "Generated by `python experiments/table3_line2point.py` (lift keys: fixed seed "
+        f"{cfg['lift_seed']}, for reproducibility only). Distances in metres; `within_τ` = % of points whose "
+        "recovered point (from their own line) lies within τ m of them. `nn_mean` is the source paper's metric "
+        "(mean distance from each original point to the nearest recovered point, any point). "
+        "No-attack baselines: `closest` = each line's closest point to the origin (the start of the canonical "
+        "export), `uniform` = a uniform point of the line inside the box of those closest points. "
+        "Line2Point: authors' parameters, 2 refinement rounds, float32. Times on 2 CPU cores shared with other jobs (noisy).",
+        "",
+    ]
+    for name, pts, desc in scenes:
+        lines.append(f"- **{name}**: {desc}")
+    lines += ["", "| map | lift | method | nn_mean | median | mean | within 0.1 | within 0.5 | within 1.0 | chamfer | time (s) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for scene, lift, method, m, t in rows:
+        lines.append(
+            f"| {scene} | {lift} | {method} | {m['nn_mean']:.3f} | {m['per_point_median']:.3f} | {m['per_point_mean']:.3f} | "
+            f"{m['within_0.1']:.1f} | {m['within_0.5']:.1f} | {m['within_1.0']:.1f} | {m['chamfer']:.3f} | {t:.1f} |"
+        )
+    out = Path(cfg["out"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
