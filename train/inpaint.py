@@ -1,0 +1,90 @@
+"""Train the EdgeConnect inpainter (edge → inpaint → joint) on CPU-scale data.
+
+Thin entry point over :func:`privslam_jax.inpaint.train.train`. Data (one of):
+
+* ``--synth-frames N``: render N synthetic frames in-process (seed ``--synth-seed``) and train on
+  crops around their privacy objects with the object-free renders as targets;
+* ``--sequence DIR``: a sequence written by ``privslam synth`` (``masks/`` + ``background/``);
+* ``--folder DIR``: any image folder, random box and irregular masks.
+
+Examples::
+
+    python train/inpaint.py --synth-frames 200 --workdir runs/inpaint --export runs/inpaint/model.npz
+    python train/inpaint.py --folder ../shared/data/inpainting/psv/images --steps 50,50,20 --workdir runs/psv
+
+Rerunning the same command resumes from ``WORKDIR/checkpoints``. Writes PNG sample grids to
+``WORKDIR/samples`` and the losses to ``WORKDIR/log.csv``; ``--export`` writes the generators as
+an :class:`~privslam_jax.inpaint.filter.Inpainter` ``.npz`` usable by ``privslam filter``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from privslam_jax._xla import configure_xla  # noqa: E402
+
+configure_xla()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--synth-frames", type=int, help="render this many synthetic frames")
+    src.add_argument("--sequence", type=Path, help="sequence folder written by `privslam synth`")
+    src.add_argument("--folder", type=Path, help="folder of images (random masks)")
+    src.add_argument("--bank", type=Path, help="a crop bank .npz saved by an earlier run")
+    p.add_argument("--synth-seed", type=int, default=0)
+    p.add_argument("--frame-stride", type=int, default=1)
+    p.add_argument("--workdir", type=Path, required=True)
+    p.add_argument("--export", type=Path, help="write the trained Inpainter .npz here")
+    p.add_argument("--width", type=int, default=16)
+    p.add_argument("--blocks", type=int, default=8)
+    p.add_argument("--size", type=int, default=64)
+    p.add_argument("--batch", type=int, default=8)
+    p.add_argument("--steps", default="2000,2000,1000", help="edge,inpaint,joint steps")
+    p.add_argument("--seed", type=int, default=0, help="model and data seed")
+    p.add_argument("--checkpoint-every", type=int, default=500)
+    p.add_argument("--sample-every", type=int, default=500)
+    p.add_argument("--max-steps", type=int, default=None)
+    a = p.parse_args(argv)
+
+    from privslam_jax.inpaint.data import CropBank, FolderData
+    from privslam_jax.inpaint.train import TrainConfig, train
+
+    steps = [int(s) for s in a.steps.split(",")]
+    if len(steps) != 3:
+        p.error("--steps needs three comma-separated numbers: edge,inpaint,joint")
+    cfg = TrainConfig(width=a.width, num_residual_blocks=a.blocks, size=a.size, batch_size=a.batch,
+                      stages=tuple(zip(("edge", "inpaint", "joint"), steps, strict=True)), seed=a.seed,
+                      checkpoint_every=a.checkpoint_every, sample_every=a.sample_every)
+    a.workdir.mkdir(parents=True, exist_ok=True)
+    bank_path = a.workdir / "crop_bank.npz"
+    if a.folder is not None:
+        data = FolderData(a.folder, a.size, seed=a.seed)
+    elif a.bank is not None:
+        data = CropBank.load(a.bank, seed=a.seed)
+    elif bank_path.is_file():  # resume: reuse the crops extracted by the first run
+        data = CropBank.load(bank_path, seed=a.seed)
+    else:
+        if a.sequence is not None:
+            data = CropBank.from_kitti_layout(a.sequence, a.size, seed=a.seed, frame_stride=a.frame_stride)
+        else:
+            from privslam_jax.data.synthetic import SynthConfig
+
+            data = CropBank.from_synthetic(SynthConfig(num_frames=a.synth_frames, seed=a.synth_seed), a.size,
+                                           seed=a.seed, frame_stride=a.frame_stride)
+        data.save(bank_path)
+        print(f"{len(data)} object crops saved to {bank_path}")
+    trainer = train(cfg, data, a.workdir, max_steps=a.max_steps)
+    if a.export is not None:
+        trainer.inpainter().save(a.export)
+        print(f"inpainter written to {a.export}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
