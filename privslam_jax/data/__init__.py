@@ -29,3 +29,10 @@ from privslam_jax.data.yolo import (
     write_yolo_labels,
     xyxy_to_cxcywhn,
 )
+from privslam_jax.data.synthetic import (
+    COCO_PRIVACY_CLASSES,
+    SynthConfig,
+    SynthFrame,
+    SyntheticSequence,
+    make_sequence,
+)
