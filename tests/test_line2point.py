@@ -79,3 +79,15 @@ def test_neighbour_count_and_errors():
         line2point(LineCloud(directions=jnp.zeros((5, 3)), moments=jnp.zeros((5, 3))), Line2PointConfig(num_refine_iterations=0))
     with pytest.raises(ValueError, match="at least 2"):
         line2point(LineCloud(directions=jnp.ones((1, 3)), moments=jnp.zeros((1, 3))))
+
+
+def test_second_call_does_not_recompile():
+    from privslam_jax.attacks import line2point as l2p
+
+    pts = street_points(300, 5)
+    cfg = Line2PointConfig(num_refine_iterations=1)
+    first = np.asarray(line2point(random_lift(pts, fixed_key(0)), cfg)[0])
+    sizes = (l2p._coarse_rows._cache_size(), l2p._refine_rows._cache_size())
+    second = np.asarray(line2point(random_lift(pts, fixed_key(1)), cfg)[0])
+    assert (l2p._coarse_rows._cache_size(), l2p._refine_rows._cache_size()) == sizes
+    assert not np.allclose(first, second)

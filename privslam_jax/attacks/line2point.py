@@ -236,6 +236,7 @@ def _run_rows(fn, n: int, config: Line2PointConfig, bar) -> jax.Array:
         rows = jnp.minimum(jnp.arange(s, s + step, dtype=jnp.int32), n - 1)
         out.append(fn(rows)[: min(step, n - s)])
         if bar is not None:
+            jax.block_until_ready(out[-1])  # dispatch is asynchronous: wait so the bar is honest
             bar.update(min(step, n - s))
     return jnp.concatenate(out)
 
