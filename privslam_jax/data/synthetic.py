@@ -229,8 +229,9 @@ class SyntheticSequence:
         rng = np.random.default_rng(config.seed)
         duration = (config.num_frames - 1) / config.fps
         self._s0 = 3.0
-        self.path = make_path(rng, self.layout, self._s0 + config.speed * duration + 120.0)
-        self.objects = so.place_objects(rng, self.path, self.layout, self._s0, config.speed, duration, config.object_density)
+        self.path = make_path(rng, self.layout, float(self._s0 + config.speed * duration + 120.0))
+        self.objects = so.place_objects(rng, self.path, self.layout, self._s0, float(config.speed), float(duration),
+                                        float(config.object_density))
         self.instance_classes: dict[int, int] = {i + 1: o.class_id for i, o in enumerate(self.objects)}
         self._classes = np.array([o.class_id for o in self.objects], np.int32)
         fx = config.fx_ratio * config.width
@@ -258,7 +259,8 @@ class SyntheticSequence:
     def __len__(self) -> int:
         return self.config.num_frames
 
-    def _check(self, i: int) -> int:
+    def _check(self, i: int | np.integer) -> int:
+        i = int(i)
         n = len(self)
         if not -n <= i < n:
             raise IndexError(f"frame index {i} out of range for a sequence of {n} frames")
@@ -272,17 +274,17 @@ class SyntheticSequence:
         right = cam + np.array([b * np.cos(cam[3]), 0.0, -b * np.sin(cam[3]), 0.0])
         return np.stack([cam, right]).astype(np.float32)
 
-    def frame_inputs(self, i: int) -> dict:
+    def frame_inputs(self, i: int | np.integer) -> dict:
         """Host-side inputs of the jitted renderer for frame ``i`` (cameras, intrinsics, object tables)."""
         i = self._check(i)
         cfg = self.config
         t = float(self.timestamps[i])
         s_cam = self._s0 + cfg.speed * t
-        pos, yaw, base = so.object_poses(self.objects, self.path, t, s_cam, cfg.speed)
+        pos, yaw, base = so.object_poses(self.objects, self.path, t, float(s_cam), float(cfg.speed))
         cam = self._cams[i]
-        tan_half = (cfg.width / 2 + 2) / self._intr[0]
-        sel = so.select_visible(pos, base, self._classes, cam[[0, 2]], cam[3], tan_half, 250.0, cfg.max_objects,
-                                cfg.baseline if cfg.stereo else 0.0)
+        tan_half = float((cfg.width / 2 + 2) / self._intr[0])
+        sel = so.select_visible(pos, base, self._classes, cam[[0, 2]], float(cam[3]), tan_half, 250.0, cfg.max_objects,
+                                float(cfg.baseline) if cfg.stereo else 0.0)
         prisms, ells, ids = so.frame_primitives(self.objects, sel, pos, yaw, base, t, cfg.max_objects)
         return {"cams": self._cams_of(i), "intr": self._intr, "prisms": prisms, "ells": ells, "slot_ids": ids,
                 "salt": self._salt}
@@ -291,12 +293,12 @@ class SyntheticSequence:
         cfg = self.config
         return {"layout": self.layout, "steps": cfg.dda_steps, "mb": cfg.column_prisms, "me": cfg.column_ellipsoids}
 
-    def render_device(self, i: int) -> dict:
+    def render_device(self, i: int | np.integer) -> dict:
         """All maps of frame ``i`` as device arrays (no host transfer; used by the benchmark)."""
         cfg = self.config
         return render_views(**self.frame_inputs(i), width=cfg.width, height=cfg.height, **self._static_kw())
 
-    def __getitem__(self, i: int) -> SynthFrame:
+    def __getitem__(self, i: int | np.integer) -> SynthFrame:
         i = self._check(i)
         inputs = self.frame_inputs(i)
         cfg = self.config
@@ -340,7 +342,7 @@ class SyntheticSequence:
         """``(N, 4, 4)`` float64 ground-truth ``T_w_c`` (left camera)."""
         return self._T_w_c.copy()
 
-    def cast(self, i: int, uv: np.ndarray, right: bool = False) -> dict[str, np.ndarray]:
+    def cast(self, i: int | np.integer, uv: np.ndarray, right: bool = False) -> dict[str, np.ndarray]:
         """Cast rays through arbitrary sub-pixel positions ``uv (N, 2)`` of frame ``i``.
 
         Returns ``depth`` (z-depth, ``inf`` = sky), ``points_w`` (world-frame hit points),
