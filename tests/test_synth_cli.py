@@ -134,7 +134,6 @@ def _synth_main(argv):
 
 
 def test_cli_writes_and_reads_back(tmp_path, capsys):
-    pytest.importorskip("privslam_jax.data.synthetic")
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
     rc = _synth_main(["synth", "--out", str(tmp_path), "--frames", "3", "--width", "64", "--height", "32", "--stereo",
@@ -146,7 +145,6 @@ def test_cli_writes_and_reads_back(tmp_path, capsys):
 
 
 def test_cli_bad_arguments(tmp_path):
-    pytest.importorskip("privslam_jax.data.synthetic")
     with pytest.raises(ValueError, match="--frames must be at least 1"):
         _synth_main(["synth", "--out", str(tmp_path), "--frames", "0"])
     with pytest.raises(ValueError, match="--name"):
