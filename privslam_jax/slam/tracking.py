@@ -21,10 +21,14 @@ from __future__ import annotations
 import dataclasses
 
 import cv2
+import jax.numpy as jnp
+import jaxlie
 import numpy as np
 
 from privslam_jax.slam.frontend import TH_HIGH, TH_LOW, Features, match_descriptors, search_by_projection
-from privslam_jax.slam.mapping import CHI2_MONO, Map, camera_center, project
+from privslam_jax.slam.mapping import Map, camera_center, project
+from privslam_jax.slam.refine import RefineConfig
+from privslam_jax.slam.refine import refine_pose as _jax_refine_pose
 from privslam_jax.types import Camera
 
 __all__ = ["TrackingConfig", "Frame", "refine_pose", "pnp_ransac", "track_motion_model", "track_local_map",
@@ -76,90 +80,29 @@ class Frame:
 
 
 # ---------------------------------------------------------------------------------------------
-def _se3_exp(xi: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    R, _ = cv2.Rodrigues(xi[:3].reshape(3, 1))
-    T[:3, :3] = R
-    T[:3, 3] = xi[3:]
-    return T
-
-
-def _refine_backend(T_c_w: np.ndarray, xyz: np.ndarray, uv: np.ndarray, w: np.ndarray, valid: np.ndarray,
-                    camera: Camera, huber: bool, iterations: int = 10) -> np.ndarray:
-    """One Huber-LM pose refinement on the valid correspondences (weights ``w = 1/σ``)."""
-    # numpy Gauss-Newton with IRLS Huber weights (stand-in until refine.py is available)
-    T = T_c_w.copy()
-    idx = np.flatnonzero(valid)
-    if len(idx) < 4:
-        return T
-    X, x, ww = xyz[idx], uv[idx], w[idx]
-    delta = np.sqrt(CHI2_MONO)
-    lam = 1e-3
-    cost_prev = None
-    for _ in range(iterations):
-        p = X @ T[:3, :3].T + T[:3, 3]
-        z = np.maximum(p[:, 2], 1e-6)
-        r = np.stack([camera.fx * p[:, 0] / z + camera.cx - x[:, 0], camera.fy * p[:, 1] / z + camera.cy - x[:, 1]], 1)
-        r = r * ww[:, None]
-        e = np.sqrt((r**2).sum(1))
-        hw = np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12)) if huber else np.ones_like(e)
-        cost = float((np.where(e <= delta, 0.5 * e**2, delta * e - 0.5 * delta**2) if huber else 0.5 * e**2).sum())
-        if cost_prev is not None and cost > cost_prev:
-            T = T_prev
-            lam *= 10
-        else:
-            lam = max(lam / 10, 1e-7)
-            cost_prev, T_prev = cost, T.copy()
-        p = X @ T[:3, :3].T + T[:3, 3]
-        z = np.maximum(p[:, 2], 1e-6)
-        r = np.stack([camera.fx * p[:, 0] / z + camera.cx - x[:, 0], camera.fy * p[:, 1] / z + camera.cy - x[:, 1]], 1)
-        r = r * ww[:, None]
-        e = np.sqrt((r**2).sum(1))
-        hw = np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12)) if huber else np.ones_like(e)
-        iz = 1.0 / z
-        J = np.zeros((len(idx), 2, 6))
-        # left perturbation T ← exp(ξ) T, ξ = (ω, v): dp = −[p]× ω + v
-        fx, fy = camera.fx, camera.fy
-        J_p = np.zeros((len(idx), 2, 3))
-        J_p[:, 0, 0] = fx * iz
-        J_p[:, 0, 2] = -fx * p[:, 0] * iz**2
-        J_p[:, 1, 1] = fy * iz
-        J_p[:, 1, 2] = -fy * p[:, 1] * iz**2
-        px = np.zeros((len(idx), 3, 3))
-        px[:, 0, 1], px[:, 0, 2], px[:, 1, 0] = -p[:, 2], p[:, 1], p[:, 2]
-        px[:, 1, 2], px[:, 2, 0], px[:, 2, 1] = -p[:, 0], -p[:, 1], p[:, 0]
-        J[:, :, :3] = -J_p @ px
-        J[:, :, 3:] = J_p
-        J = J * ww[:, None, None]
-        Jw = J * hw[:, None, None]
-        H = np.einsum("nai,naj->ij", Jw, J)
-        g = np.einsum("nai,na->i", Jw, r)
-        H = H + lam * np.diag(np.diag(H) + 1e-9)
-        xi = -np.linalg.solve(H, g)
-        T = _se3_exp(xi) @ T
-        if np.linalg.norm(xi) < 1e-10:
-            break
-    return T
+_REFINE_CONFIG = RefineConfig()
+_REFINE_BUCKETS = (512, 2048, 8192)
+"""Few, coarse padding sizes: one or two compilations per run (a 2,048-row solve costs a few ms)."""
 
 
 def refine_pose(T_c_w: np.ndarray, xyz: np.ndarray, uv: np.ndarray, octave: np.ndarray, camera: Camera,
-                scale_factor: float = 1.2, rounds: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """ORB-SLAM ``PoseOptimization``: returns the refined ``T_c_w`` and the inlier mask."""
+                scale_factor: float = 1.2, u_right: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """ORB-SLAM ``PoseOptimization`` on the jitted JAX solver: refined ``T_c_w`` and inlier mask.
+
+    ``u_right`` (``< 0`` = monocular) adds ORB-SLAM's stereo residual; ``camera.baseline`` must be set.
+    """
     n = len(xyz)
-    inl = np.ones(n, bool)
     if n < 4:
         return T_c_w, np.zeros(n, bool)
-    s2 = scale_factor ** (2.0 * octave)
-    w = 1.0 / np.sqrt(s2)
-    T = T_c_w
-    for it in range(rounds):
-        T = _refine_backend(T, xyz, uv, w, inl, camera, huber=it < 2)
-        p_uv, z = project(T, xyz, camera)
-        chi2 = ((p_uv - uv) ** 2).sum(1) / s2
-        inl = (chi2 < CHI2_MONO) & (z > 0)
-        if inl.sum() < 10:
-            break
-    return T, inl
+    inv_s2 = scale_factor ** (-2.0 * octave)
+    T0 = jaxlie.SE3.from_matrix(jnp.asarray(T_c_w, jnp.float32))
+    res = _jax_refine_pose(T0, xyz.astype(np.float32), uv.astype(np.float32), None, camera, _REFINE_CONFIG,
+                           u_right=None if u_right is None else u_right.astype(np.float32),
+                           inv_sigma2=inv_s2.astype(np.float32), buckets=_REFINE_BUCKETS)
+    T = np.asarray(res.T_c_w.as_matrix(), np.float64)
+    if not np.isfinite(T).all():
+        return T_c_w, np.zeros(n, bool)
+    return T, np.asarray(res.inliers, bool)
 
 
 def pnp_ransac(xyz: np.ndarray, uv: np.ndarray, camera: Camera, seed: int, cfg: TrackingConfig
@@ -193,7 +136,12 @@ def _optimise_frame(frame: Frame, m: Map, T0: np.ndarray) -> int:
         frame.T_c_w = T0
         return 0
     pid = frame.point_ids[idx]
-    T, inl = refine_pose(T0, m.xyz[pid], frame.feats.uv[idx], frame.feats.octave[idx], m.camera, m.scale_factor)
+    ur = None
+    cam = m.camera
+    if frame.feats.depth is not None and cam.baseline:
+        z = frame.feats.depth[idx]
+        ur = np.where(np.isfinite(z) & (z > 0), frame.feats.uv[idx, 0] - cam.fx * cam.baseline / np.where(z > 0, z, 1.0), -1.0)
+    T, inl = refine_pose(T0, m.xyz[pid], frame.feats.uv[idx], frame.feats.octave[idx], cam, m.scale_factor, ur)
     frame.T_c_w = T
     frame.point_ids[idx[~inl]] = -1
     return int(inl.sum())
