@@ -1,6 +1,6 @@
 """Inpainting benchmark: EdgeConnect train-step time and per-frame privacy-filter time.
 
-Command: ``python benchmarks/bench_inpaint.py [--repeats 20] [--full-repeats 3] [--skip-full]``
+Command: ``python benchmarks/bench_inpaint.py [--repeats 20] [--full-repeats 3] [--skip-full] [--parts train,full,filter]``
 
 * train step (edge G + D, inpaint G + D, i.e. one "joint" step) for the CPU preset (width 16,
   8 residual blocks) at 64², batch 8, and for the official full width (64) at 256², batch 1;
@@ -89,15 +89,22 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--full-repeats", type=int, default=3, help="repeats of the slow full-width step")
     p.add_argument("--skip-full", action="store_true")
+    p.add_argument("--parts", default="train,full,filter", help="subset of train,full,filter")
     a = p.parse_args()
+    parts = set(a.parts.split(","))
+    if a.skip_full:
+        parts.discard("full")
     print(f"jax {jax.__version__}, devices {jax.devices()}, repeats {a.repeats}")
     print("\n| train step (joint: edge G+D, inpaint G+D) | compile+first (s) | median (s) |")
     print("|---|---|---|")
-    first, med = bench_train(16, 64, 8, a.repeats)
-    print(f"| CPU preset width 16, 64², batch 8 | {first:.1f} | {med:.3f} |")
-    if not a.skip_full:
+    if "train" in parts:
+        first, med = bench_train(16, 64, 8, a.repeats)
+        print(f"| CPU preset width 16, 64², batch 8 | {first:.1f} | {med:.3f} |")
+    if "full" in parts:
         first, med = bench_train(64, 256, 1, a.full_repeats)
         print(f"| full width 64, 256², batch 1 ({a.full_repeats} runs) | {first:.1f} | {med:.3f} |")
+    if "filter" not in parts:
+        return
     print("\n| frame | objects | compile+first (s) | EdgeConnect CPU preset (ms) | OpenCV Telea (ms) |")
     print("|---|---|---|---|---|")
     for size, k, first, ours, telea in bench_filter(a.repeats):

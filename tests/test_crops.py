@@ -103,3 +103,13 @@ def test_save_load_roundtrip(inpainter, tmp_path):
     )
     with pytest.raises(FileNotFoundError):
         Inpainter.load(tmp_path / "none.npz")
+
+
+def test_second_frame_does_not_recompile(inpainter):
+    img, _ = _frame(4)
+    a = _box(72, 160, 10, 30, 10, 30)
+    b = _box(72, 160, 20, 60, 90, 150)  # different crop size: resized to the same model size
+    filter_frame(img, a[None], inpainter=inpainter)
+    n = inpainter._run._cache_size()
+    filter_frame(img, np.stack([a, b]), inpainter=inpainter)
+    assert inpainter._run._cache_size() == n == 1
