@@ -20,7 +20,7 @@ import numpy as np
 
 from privslam_jax.data import _synth_objects as so
 from privslam_jax.data._synth_textures import (
-    band, cscale, cwhere, fade, grey, grid_lines, mix, palette, rand3, rgb, value_noise, current_channel,
+    band, cscale, current_channel, cwhere, fade, grey, grid_lines, mix, palette, rand3, rand_bytes, rgb, shared, value_noise,
 )
 
 _SUN = tuple(float(v) for v in np.array([0.5, -0.75, 0.42]) / np.linalg.norm([0.5, -0.75, 0.42]))
@@ -68,19 +68,23 @@ def lighting(col, normal, view, dist):
     return mix(cscale(col, shade), rgb(*HORIZON), fog)
 
 
-def sky_color(d):
-    """Sky gradient with direction-anchored clouds (at infinity, so consistent across views)."""
+def cloud_coords(d):
+    """Direction-anchored sky coordinates (clouds at infinity: consistent across views)."""
     n = _unit(d)
     up = jnp.clip(-n[1], 0.0, 1.0)
-    col = mix(rgb(*HORIZON), rgb(0.36, 0.56, 0.86), jnp.clip(up * 2.5, 0.0, 1.0))
     k = 1.0 / (up + 0.08)
-    cx, cz = n[0] * k, n[2] * k
-    cloud = 0.6 * value_noise(cx * 1.5, cz * 1.5, 7) + 0.4 * value_noise(cx * 4.0, cz * 4.0, 8)
+    return n[0] * k, n[2] * k, up
+
+
+def sky_color(up, noise):
+    """Sky gradient with clouds (``noise``: value noise at two scales of the cloud coordinates)."""
+    col = mix(rgb(*HORIZON), rgb(0.36, 0.56, 0.86), jnp.clip(up * 2.5, 0.0, 1.0))
+    cloud = 0.6 * noise[0] + 0.4 * noise[1]
     cov = jnp.clip((cloud - 0.52) * 4.0, 0.0, 1.0) * jnp.clip(up * 6.0, 0.0, 1.0)
     return mix(col, rgb(0.95, 0.96, 0.97), cov * 0.85)
 
 
-def road_color(x, z, layout, fw, salt):
+def road_color(x, z, layout, fw, noise):
     P, R = layout.period, layout.road_half_width
     latx = x - jnp.round(x / P) * P
     latz = z - jnp.round(z / P) * P
@@ -90,10 +94,7 @@ def road_color(x, z, layout, fw, salt):
     dcross = jnp.where(road_z, jnp.abs(latz), jnp.abs(latx))
     alat = jnp.abs(lat)
     in_street = dcross > R
-    g1 = value_noise(x / 2.3, z / 2.3, salt + 11)
-    g2 = value_noise(x / 0.31, z / 0.31, salt + 12)
-    g3 = value_noise(x / 0.07, z / 0.07, salt + 13)
-    patch = value_noise(x / 6.0, z / 6.0, salt + 14)
+    g1, g2, g3, patch = noise
     base = 0.30 + 0.08 * (g1 - 0.5) + 0.10 * (g2 - 0.5) * fade(fw, 0.31) + 0.10 * (g3 - 0.5) * fade(fw, 0.07)
     base = base * (1.0 - 0.18 * band(patch, 0.70, 2.0, 0.02 + fw * 0.1))
     base = base * (0.78 + 0.22 * jnp.clip((R - alat) / 0.6, 0.0, 1.0))  # gutter
@@ -110,7 +111,7 @@ def road_color(x, z, layout, fw, salt):
     return grey(g, (0.98, 0.99, 1.02))
 
 
-def sidewalk_color(x, z, cx, cz, layout, fw, salt):
+def sidewalk_color(x, z, cx, cz, layout, fw, salt, noise):
     P, R = layout.period, layout.road_half_width
     x0, x1 = cx * P + R, (cx + 1) * P - R
     z0, z1 = cz * P + R, (cz + 1) * P - R
@@ -118,19 +119,19 @@ def sidewalk_color(x, z, cx, cz, layout, fw, salt):
     tile = rand3(jnp.floor(x / 0.5).astype(jnp.int32), jnp.floor(z / 0.5).astype(jnp.int32), salt + 21)
     grout = jnp.maximum(grid_lines(x, 0.5, 0.012, fw), grid_lines(z, 0.5, 0.012, fw))
     g = 0.60 + 0.12 * (tile - 0.5) * fade(fw, 0.5)
-    g = g * (1.0 - 0.45 * grout) * (0.9 + 0.1 * value_noise(x / 3.0, z / 3.0, salt + 22))
+    g = g * (1.0 - 0.45 * grout) * (0.9 + 0.1 * noise[0])
     kerb_joint = jnp.maximum(grid_lines(x, 1.0, 0.01, fw), grid_lines(z, 1.0, 0.01, fw))
-    kerb = (0.72 + 0.06 * value_noise(x / 0.4, z / 0.4, salt + 23)) * (1.0 - 0.4 * kerb_joint)
+    kerb = (0.72 + 0.06 * noise[1]) * (1.0 - 0.4 * kerb_joint)
     g = jnp.where(dedge < 0.3, kerb, g)
     return grey(g, (1.0, 0.97, 0.93))
 
 
-def wall_color(a, h, key, bh, fwa, fwh, salt):
+def wall_color(a, h, key, bh, fwa, fwh, salt, noise):
     """Façade colour at along-wall coordinate ``a`` and height ``h`` (metres) of the block ``key``."""
     seg = jnp.floor(a / 9.0)
     la = a - seg * 9.0
     seg_i = seg.astype(jnp.int32)
-    r = [rand3(key, seg_i, salt + 100 + i) for i in range(8)]
+    r = rand_bytes(key, seg_i, salt + 100) + rand_bytes(key, seg_i, salt + 101)
     brick = r[1] < 0.35
     base = cwhere(brick, palette(jnp.floor(r[0] * 4).astype(jnp.int32), _BRICKS),
                   palette(jnp.floor(r[0] * 8).astype(jnp.int32), _WALLS))
@@ -140,7 +141,7 @@ def wall_color(a, h, key, bh, fwa, fwh, salt):
     bvar = rand3(jnp.floor(bx).astype(jnp.int32), row.astype(jnp.int32), salt + 31)
     mortar = jnp.maximum(grid_lines(h, 0.075, 0.006, fwh), grid_lines(bx * 0.24, 0.24, 0.006, fwa))
     bshade = 0.85 + 0.3 * (bvar - 0.5) * fade(jnp.maximum(fwa, fwh), 0.15)
-    stain = value_noise(a / 1.7, h / 1.7, salt + 32)
+    stain = noise[0]
     shade = jnp.where(brick, bshade, 0.9 + 0.14 * stain)
     col = mix(cscale(base, shade), rgb(0.78, 0.76, 0.72), 0.8 * mortar * brick)
     # pilasters at house borders, plinth, cornice, string courses
@@ -181,7 +182,7 @@ def wall_color(a, h, key, bh, fwa, fwh, salt):
     door = band(la, door0, door0 + 1.3, fwa) * band(h, 0.0, 2.4, fwh)
     doorcol = palette(jnp.floor(r[5] * 4).astype(jnp.int32), [[0.35, 0.20, 0.12], [0.10, 0.25, 0.15], [0.15, 0.15, 0.18], [0.55, 0.10, 0.10]])
     shopwin = band(la, 0.8, 8.2, fwa) * band(h, 0.55, 3.0, fwh) * shop
-    shopglass = mix(rgb(0.12, 0.14, 0.17), rgb(0.55, 0.50, 0.42), value_noise(a / 0.8, h / 0.8, salt + 42) * 0.7)
+    shopglass = mix(rgb(0.12, 0.14, 0.17), rgb(0.55, 0.50, 0.42), noise[1] * 0.7)
     col = mix(col, rgb(0.15, 0.15, 0.16), band(la, 0.7, 8.3, fwa) * band(h, 0.45, 3.1, fwh) * shop)
     col = mix(col, shopglass, shopwin)
     sign = band(la, 0.7, 8.3, fwa) * band(h, 3.15, 3.75, fwh) * shop
@@ -210,18 +211,32 @@ def static_color(p, d, hit, layout, fx, salt):
     vertical = (kind >= 2) & side
     normal = (jnp.where(vertical & xface, nx, zero), jnp.where(vertical, zero, -1.0),
               jnp.where(vertical & ~xface, nz, zero))
-    fw_x = footprint(dist, fx, view, normal, 0)
-    fw_y = footprint(dist, fx, view, normal, 1)
-    fw_z = footprint(dist, fx, view, normal, 2)
+    fw_x = shared(footprint(dist, fx, view, normal, 0))
+    fw_y = shared(footprint(dist, fx, view, normal, 1))
+    fw_z = shared(footprint(dist, fx, view, normal, 2))
+    dist = shared(dist)
+    view = tuple(shared(v) for v in view)
     fw_ground = jnp.maximum(fw_x, fw_z)
     a = jnp.where(xface, z, x)
     fwa = jnp.where(xface, fw_z, fw_x)
     h = -y
     face = jnp.where(xface, 0, 2) + (jnp.where(xface, nx, nz) > 0)
     key = (hit["s_cx"].astype(jnp.int32) * 4 + face) * 7919 + hit["s_cz"].astype(jnp.int32)
-    road = road_color(x, z, layout, fw_ground, salt)
-    walk = sidewalk_color(x, z, hit["s_cx"], hit["s_cz"], layout, fw_ground, salt)
-    wall = wall_color(a, h, key, hit["s_bh"], fwa, fw_y, salt)
+    # four value-noise fields shared by all materials, on each material's surface coordinates
+    ccx, ccz, up = cloud_coords(d)
+    sky = kind == 0
+    su = jnp.where(sky, ccx, jnp.where(vertical, a, x))
+    sv = jnp.where(sky, ccz, jnp.where(vertical, h, z))
+    scales = {1: (2.3, 0.31, 0.07, 6.0), 2: (3.0, 0.4, 1.0, 1.0), 3: (1.7, 0.8, 1.0, 1.0), 0: (1 / 1.5, 0.25, 1.0, 1.0)}
+    noise = []
+    for k in range(4):
+        inv = jnp.full(kind.shape, 1.0, jnp.float32)
+        for m, sc in scales.items():
+            inv = jnp.where(kind == m, 1.0 / sc[k], inv)
+        noise.append(value_noise(su * inv, sv * inv, salt + 11 + k))
+    road = road_color(x, z, layout, fw_ground, noise)
+    walk = sidewalk_color(x, z, hit["s_cx"], hit["s_cz"], layout, fw_ground, salt, noise)
+    wall = wall_color(a, h, key, hit["s_bh"], fwa, fw_y, salt, noise)
     kerb = grey(0.66 * (1.0 - 0.4 * grid_lines(a, 1.0, 0.01, fwa)), (1.0, 0.98, 0.95))
     col = cwhere(kind == 1, road, walk)
     col = cwhere((kind == 2) & side, kerb, col)
@@ -229,7 +244,7 @@ def static_color(p, d, hit, layout, fx, salt):
     # fake ambient occlusion at the foot of walls
     ao = jnp.where(vertical & (kind == 3), 0.72 + 0.28 * jnp.clip((h - 0.15) / 1.5, 0.0, 1.0), 1.0)
     lit = lighting(cscale(col, ao), normal, view, dist)
-    return cwhere(kind == 0, sky_color(d), lit)
+    return cwhere(sky, sky_color(up, noise), lit)
 
 
 def _plate(u, v, inst):
@@ -248,7 +263,7 @@ def _plate(u, v, inst):
 
 def object_color(p, d, t, row, table, fx):
     """One channel of the colour of object hits (``row`` indexes the packed primitive ``table``)."""
-    f = [jnp.take(table[:, k], row, axis=0) for k in range(23)]
+    f = [shared(jnp.take(table[:, k], row, axis=0)) for k in range(23)]
     c, h = f[0:3], f[3:6]
     Rm = f[6:15]
     ch = current_channel()
@@ -258,7 +273,7 @@ def object_color(p, d, t, row, table, fx):
     inst = jnp.round(f[22]).astype(jnp.int32)
     is_ell = row >= table.shape[0] - so.NE * (table.shape[0] // (so.NB + so.NE))
     rel = tuple(p[i] - c[i] for i in range(3))
-    pl = tuple(Rm[3 * r] * rel[0] + Rm[3 * r + 1] * rel[1] + Rm[3 * r + 2] * rel[2] for r in range(3))
+    pl = tuple(shared(Rm[3 * r] * rel[0] + Rm[3 * r + 1] * rel[1] + Rm[3 * r + 2] * rel[2]) for r in range(3))
     q = tuple(pl[i] / h[i] for i in range(3))
     aq = tuple(jnp.abs(v) for v in q)
     # prism normal: the dominant local axis; ellipsoid: gradient of the quadric
@@ -267,9 +282,9 @@ def object_color(p, d, t, row, table, fx):
     fza = ~(fxa | fya)
     n_box = (fxa * jnp.sign(q[0]), fya * jnp.sign(q[1]), fza * jnp.sign(q[2]))
     n_loc = _unit(tuple(jnp.where(is_ell, q[i] / h[i], n_box[i]) for i in range(3)))
-    normal = tuple(Rm[i] * n_loc[0] + Rm[3 + i] * n_loc[1] + Rm[6 + i] * n_loc[2] for i in range(3))
-    dist = t * _norm(d)
-    view = _unit(d)
+    normal = tuple(shared(Rm[i] * n_loc[0] + Rm[3 + i] * n_loc[1] + Rm[6 + i] * n_loc[2]) for i in range(3))
+    dist = shared(t * _norm(d))
+    view = tuple(shared(v) for v in _unit(d))
     fw = dist / fx
     X, Y, Z = pl
     hx, hy, hz = h

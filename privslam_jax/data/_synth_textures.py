@@ -45,7 +45,21 @@ def unit(h):
 
 def rand3(i, j, k):
     """Uniform [0, 1) per integer lattice cell."""
-    return unit(hash3(i, j, k))
+    return shared(unit(hash3(i, j, k)))
+
+
+def hash_fast(i, j, k):
+    """A cheaper 2-D lattice hash (two multiply–xorshift rounds) for value noise."""
+    h = (jnp.asarray(i).astype(jnp.uint32) * np.uint32(0x8DA6B343)) ^ (jnp.asarray(j).astype(jnp.uint32) * np.uint32(0xD8163841))
+    h = (h ^ jnp.asarray(k).astype(jnp.uint32)) * np.uint32(0x2C1B3C6D)
+    h = (h ^ (h >> 15)) * np.uint32(0x297A2D39)
+    return h ^ (h >> 15)
+
+
+def rand_bytes(i, j, k):
+    """Four independent uniforms in [0, 1) (8 bits each) from one lattice hash."""
+    h = shared(hash3(i, j, k))
+    return [((h >> (8 * b)) & np.uint32(0xFF)).astype(jnp.float32) * np.float32(1.0 / 256.0) for b in range(4)]
 
 
 def value_noise(x, y, salt):
@@ -56,13 +70,13 @@ def value_noise(x, y, salt):
     fy = y - yi
     xi = xi.astype(jnp.int32)
     yi = yi.astype(jnp.int32)
-    a = rand3(xi, yi, salt)
-    b = rand3(xi + 1, yi, salt)
-    c = rand3(xi, yi + 1, salt)
-    d = rand3(xi + 1, yi + 1, salt)
+    a = unit(hash_fast(xi, yi, salt))
+    b = unit(hash_fast(xi + 1, yi, salt))
+    c = unit(hash_fast(xi, yi + 1, salt))
+    d = unit(hash_fast(xi + 1, yi + 1, salt))
     sx = fx * fx * (3.0 - 2.0 * fx)
     sy = fy * fy * (3.0 - 2.0 * fy)
-    return (a + (b - a) * sx) * (1.0 - sy) + (c + (d - c) * sx) * sy
+    return shared((a + (b - a) * sx) * (1.0 - sy) + (c + (d - c) * sx) * sy)
 
 
 def fade(fw, size):
@@ -104,6 +118,39 @@ def channel(c):
         yield
     finally:
         _CHANNEL.pop()
+
+
+_SHARED: list = []
+
+
+@contextlib.contextmanager
+def sharing(mode: str, values: list | None = None):
+    """Record (``mode="record"``) or replay (``"replay"``) the channel-independent fields of a shading pass.
+
+    The shading program is traced twice: once outside the per-channel ``lax.map`` in record mode,
+    where every :func:`shared` value (hashes, noise, geometry) is collected, and once inside it in
+    replay mode, where :func:`shared` returns the recorded arrays in the same order.  Loop operands
+    are materialised, so the expensive channel-independent work runs once instead of three times.
+    """
+    state = {"mode": mode, "values": [] if values is None else values, "i": 0}
+    _SHARED.append(state)
+    try:
+        yield state["values"]
+    finally:
+        _SHARED.pop()
+
+
+def shared(x):
+    """Mark a channel-independent value (see :func:`sharing`); identity outside a sharing block."""
+    if not _SHARED:
+        return x
+    state = _SHARED[-1]
+    if state["mode"] == "record":
+        state["values"].append(x)
+        return x
+    v = state["values"][state["i"]]
+    state["i"] += 1
+    return v
 
 
 def current_channel():

@@ -32,7 +32,7 @@ from flax import struct
 from privslam_jax.data import _synth_objects as so
 from privslam_jax.data._synth_path import CityLayout, make_path
 from privslam_jax.data._synth_shade import object_color, static_color
-from privslam_jax.data._synth_textures import channel
+from privslam_jax.data._synth_textures import channel, sharing
 from privslam_jax.data._synth_trace import trace
 from privslam_jax.types import Camera, Trajectory
 
@@ -161,11 +161,18 @@ def _view(cam, intr, uu, vv, prisms, ells, salt, layout, steps, mb, me):
     p_s = tuple(o[i] + ts * d[i] for i in range(3))
     p_o = tuple(o[i] + to * d[i] for i in range(3))
 
-    def shade(c):
-        with channel(c):
-            bg = jnp.clip(static_color(p_s, d, hit, layout, fx, salt), 0.0, 1.0)
-            oc = jnp.clip(object_color(p_o, d, to, hit["o_row"], table, fx), 0.0, 1.0)
+    def colors():
+        bg = jnp.clip(static_color(p_s, d, hit, layout, fx, salt), 0.0, 1.0)
+        oc = jnp.clip(object_color(p_o, d, to, hit["o_row"], table, fx), 0.0, 1.0)
         return jnp.where(obj, oc, bg), bg
+
+    # trace once to collect the channel-independent fields, then shade one channel per iteration
+    with channel(jnp.int32(0)), sharing("record") as fields:
+        colors()
+
+    def shade(c):
+        with channel(c), sharing("replay", fields):
+            return colors()
 
     image, bg = jax.lax.map(shade, jnp.arange(3, dtype=jnp.int32))
     inst = jnp.round(jnp.take(table[:, 22], hit["o_row"], axis=0)).astype(jnp.int32)
