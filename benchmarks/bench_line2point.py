@@ -53,24 +53,24 @@ def street_lines(n: int, seed: int = 0):
     return pts, random_lift(jnp.asarray(pts, jnp.float32), fixed_key(seed))
 
 
-def timed(fn, repeats: int) -> tuple[float, float]:
-    """(first call incl. compile, median of `repeats` warm calls), seconds."""
+def timed(fn, repeats: int) -> tuple[float, float, np.ndarray]:
+    """(first call incl. compile, median of `repeats` warm calls in seconds, last result)."""
     t0 = time.perf_counter()
-    jax.block_until_ready(fn())
+    out = jax.block_until_ready(fn())
     first = time.perf_counter() - t0
     ts = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        jax.block_until_ready(fn())
+        out = jax.block_until_ready(fn())
         ts.append(time.perf_counter() - t0)
-    return first, float(np.median(ts))
+    return first, float(np.median(ts)), np.asarray(out)
 
 
 def part_2k(repeats: int) -> dict:
     from line2point_reference import line2point_reference
 
     pts, lines = street_lines(2000)
-    first, warm = timed(lambda: line2point(lines)[0], repeats)
+    first, warm, _ = timed(lambda: line2point(lines)[0], repeats)
     d = np.asarray(lines.directions, np.float64)
     a = np.cross(d, np.asarray(lines.moments, np.float64))
     t0 = time.perf_counter()
@@ -81,8 +81,7 @@ def part_2k(repeats: int) -> dict:
 
 def part_20k(repeats: int) -> dict:
     pts, lines = street_lines(20000)
-    first, warm = timed(lambda: line2point(lines)[0], repeats)
-    rec = np.asarray(line2point(lines)[0])
+    first, warm, rec = timed(lambda: line2point(lines)[0], repeats)
     within = float(np.mean(np.linalg.norm(rec - pts, axis=1) < 0.5) * 100)
     return {"N": 20000, "jax_s": warm, "compile_s": first - warm, "within_0.5_pct": within}
 
