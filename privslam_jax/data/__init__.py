@@ -29,6 +29,7 @@ from privslam_jax.data.yolo import (
     write_yolo_labels,
     xyxy_to_cxcywhn,
 )
+from privslam_jax.data.bal import BALProblem, bal_cost, bal_residuals, bal_to_opencv, opencv_to_bal_cameras, read_bal
 from privslam_jax.data.synthetic import (
     COCO_PRIVACY_CLASSES,
     SynthConfig,

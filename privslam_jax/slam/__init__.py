@@ -1,5 +1,6 @@
 """privslam_jax.slam."""
 
+from privslam_jax.slam.ba import BAConfig, BAResult, BAStructure, analyze, ba_bucket, bundle_adjust, bundle_adjust_padded
 from privslam_jax.slam.refine import (
     DEFAULT_BUCKETS,
     RefineConfig,

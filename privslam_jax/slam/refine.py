@@ -119,13 +119,13 @@ class RefineResult:
     """LM iterations run in total (over all rounds)."""
 
 
-def huber_rho(s: Float[Array, "*b"], delta: Float[Array, "*b"] | float) -> Float[Array, "*b"]:
+def huber_rho(s: Float[Array, "*b"], delta: Array | float) -> Float[Array, "*b"]:
     """Huber loss of a squared (whitened) error: ``s`` if ``s ≤ δ²`` else ``2δ√s − δ²``."""
     safe = jnp.maximum(s, delta * delta)
     return jnp.where(s <= delta * delta, s, 2.0 * delta * jnp.sqrt(safe) - delta * delta)
 
 
-def _huber_weight(s: Float[Array, "*b"], delta: Float[Array, "*b"] | float) -> Float[Array, "*b"]:
+def _huber_weight(s: Float[Array, "*b"], delta: Array | float) -> Float[Array, "*b"]:
     safe = jnp.maximum(s, delta * delta)
     return jnp.where(s <= delta * delta, 1.0, delta / jnp.sqrt(safe))
 

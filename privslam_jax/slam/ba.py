@@ -1,0 +1,571 @@
+"""Bundle adjustment: jitted Huber-robust Levenberg–Marquardt with the Schur complement on the points.
+
+Problem.  Cameras ``T_c,w`` (world-to-camera, ``M`` of them, some fixed for the gauge) and points
+``X_p`` (``P``), observations ``o = (c, p, z_o)`` with information ``Ω_o = σ_o⁻² I``:
+
+    F = ½ Σ_o ρ(s_o),   s_o = Ω_o ‖π_c(T_c X_p) − z_o‖²,
+
+with the Huber ``ρ`` of :mod:`privslam_jax.slam.refine` (``config.huber_delta = None``: squared loss).
+
+Normal equations.  Cameras are updated on the left, ``T_c ← exp(ξ_c) T_c`` (jaxlie tangent
+``(ρ, ω)``), points additively.  With the IRLS weights ``w_o = ρ'(s_o) Ω_o`` and the analytic
+Jacobians ``A_o = ∂r_o/∂ξ_c`` (2×6), ``B_o = ∂r_o/∂X_p`` (2×3)
+(:func:`privslam_jax.geometry.projection.reprojection_jacobians`):
+
+    [ U   W ] [ξ]   [−g_c]     U = blockdiag_c Σ_{o∈c} w A_oᵀA_o  (6×6 blocks)
+    [ Wᵀ  V ] [δ] = [−g_p],    V = blockdiag_p Σ_{o∈p} w B_oᵀB_o  (3×3 blocks),  W_o = w A_oᵀB_o,
+
+damped as ``U + λ diag(U)``, ``V + λ diag(V)`` (Marquardt; the diagonal clamped to [1e-6, 1e32] as in
+Ceres).  Eliminating the points (Triggs et al. 2000, §6.1; Agarwal et al., *Bundle Adjustment in the
+Large*, ECCV 2010, §3) gives the reduced camera system
+
+    S ξ = −g_c + Σ_o Y_o g_{p(o)},     S = U − Σ_p Σ_{o,o'∈p} Y_o W_{o'}ᵀ,    Y_o = W_o V_{p(o)}⁻¹,
+
+then ``δ_p = V_p⁻¹(−g_p − Σ_{o∈p} W_oᵀ ξ_{c(o)})``.  The 3×3 blocks ``V_p`` are inverted in batch in
+closed form (adjugate, after Jacobi scaling); ``S`` (``6M × 6M``, dense) is factorised by Cholesky.
+Fixed cameras get ``ξ_c = 0`` (identity rows in ``S``).
+
+Schur assembly.  ``S``'s off-diagonal part is a sum over the pairs ``(o, o')`` of observations of one
+point.  The pairs are built on the host (:func:`analyze`), sorted by camera pair and padded per camera
+pair to a multiple of ``chunk`` so that the jitted code sums chunks with a dense reduction and runs
+the (slow on CPU) scatter ``segment_sum`` only over ``Q/chunk`` chunk sums.  Only ``o < o'`` is
+stored; ``S_off = X + Xᵀ``.
+
+λ follows Nielsen's rule as in :mod:`privslam_jax.slam.refine`; stopping as Ceres: relative cost
+decrease ``< function_tolerance``, ``‖Δx‖ ≤ parameter_tolerance·(‖x‖ + parameter_tolerance)``, or
+``cost ≤ target_cost``.
+
+Sizes.  All arrays are padded to size buckets (cameras, points, observations, pairs); a new bucket
+combination compiles once.  :func:`bundle_adjust` is the host entry point (checks, padding, unpadding).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from flax import struct
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from privslam_jax.slam.refine import huber_rho
+from privslam_jax.types import Camera
+
+__all__ = ["BAConfig", "BAResult", "BAStructure", "analyze", "bundle_adjust", "bundle_adjust_padded", "ba_bucket"]
+
+
+@dataclasses.dataclass(frozen=True)
+class BAConfig:
+    """Settings of :func:`bundle_adjust` (static: changing one recompiles)."""
+
+    max_iterations: int = 50
+    """Maximum LM iterations (accepted or rejected)."""
+    huber_delta: float | None = math.sqrt(5.991)
+    """Huber threshold δ on the whitened error (ORB-SLAM local BA: √5.991); ``None`` = squared loss."""
+    chi2: float = 5.991
+    """χ² threshold (2 dof, 95 %) for the returned inlier mask."""
+    initial_damping: float = 1e-4
+    """Initial λ (Ceres' default initial trust-region radius 1e4 ⇒ 1e-4)."""
+    function_tolerance: float = 1e-6
+    """Stop when an accepted step lowers the cost by less than this fraction (Ceres' default)."""
+    parameter_tolerance: float = 1e-8
+    """Stop when ``‖Δx‖ ≤ tol·(‖x‖ + tol)`` (Ceres' default)."""
+    target_cost: float = 0.0
+    """Stop as soon as the cost is at or below this (benchmarks; 0 disables)."""
+    min_depth: float = 1e-3
+    """Camera-frame ``z`` at or below which a point counts as behind the camera (no gradient, penalty)."""
+    behind_chi2: float = 1e6
+    """Whitened χ² charged for an observation behind the camera."""
+    chunk: int = 16
+    """Pairs per dense chunk in the Schur assembly (see the module docstring)."""
+
+
+@struct.dataclass
+class BAStructure:
+    """Host-computed sparsity of the Schur complement (:func:`analyze`), padded."""
+
+    pair_a: Int[Array, " Q"]
+    """First observation of each pair (``o < o'``, same point)."""
+    pair_b: Int[Array, " Q"]
+    """Second observation of each pair."""
+    chunk_seg: Int[Array, " Qc"]
+    """Camera-pair segment ``c(o)·M + c(o')`` of each chunk of ``chunk`` consecutive pairs."""
+
+
+@struct.dataclass
+class BAResult:
+    """Output of :func:`bundle_adjust`."""
+
+    T_c_w: jaxlie.SE3
+    """Optimised world-to-camera poses (batch ``M``)."""
+    points: Float[Array, "P 3"]
+    """Optimised world points."""
+    cost: Float[Array, ""]
+    """Final cost ``½ Σ ρ(s_o)``."""
+    initial_cost: Float[Array, ""]
+    """Cost at the start."""
+    inliers: Bool[Array, " O"]
+    """Valid observations in front of their camera with ``s_o < chi2`` at the solution."""
+    iterations: Int[Array, ""]
+    """LM iterations run."""
+
+
+def ba_bucket(n: int, minimum: int = 4) -> int:
+    """Padded size: the smallest power of two ``≥ max(n, minimum)``."""
+    return int(max(minimum, 1 << max(0, int(n - 1).bit_length())))
+
+
+def analyze(
+    obs_cam: np.ndarray, obs_pt: np.ndarray, n_cams: int, n_obs_padded: int, chunk: int, pad: bool = True
+) -> BAStructure:
+    """Pairs of observations of the same point, sorted by camera pair and padded per pair to ``chunk``.
+
+    ``obs_cam``/``obs_pt`` hold the *valid* observations only (rows ``0..O-1`` of the padded arrays);
+    ``n_obs_padded > O`` so that row ``O`` (a padded, zero-weight observation) serves as the dummy.
+    """
+    obs_cam = np.asarray(obs_cam, np.int64)
+    obs_pt = np.asarray(obs_pt, np.int64)
+    n = obs_cam.shape[0]
+    if n_obs_padded <= n:
+        raise ValueError("analyze needs at least one padded observation row for the dummy pair")
+    order = np.argsort(obs_pt, kind="stable")
+    pts_sorted = obs_pt[order]
+    starts = np.flatnonzero(np.r_[True, pts_sorted[1:] != pts_sorted[:-1]]) if n else np.zeros(0, np.int64)
+    sizes = np.diff(np.r_[starts, n])
+    group_start = np.repeat(starts, sizes)
+    pos = np.arange(n)
+    later = group_start + np.repeat(sizes, sizes) - pos - 1  # observations after `pos` in its group
+    total = int(later.sum())
+    first_pos = np.repeat(pos, later)
+    offs = np.arange(total) - np.repeat(np.cumsum(later) - later, later)
+    second_pos = first_pos + 1 + offs
+    a, b = order[first_pos], order[second_pos]
+    seg = obs_cam[a] * n_cams + obs_cam[b]
+    srt = np.argsort(seg, kind="stable")
+    a, b, seg = a[srt], b[srt], seg[srt]
+    # pad every segment to a multiple of `chunk`
+    useg, cnt = np.unique(seg, return_counts=True)
+    padded_cnt = -(-cnt // chunk) * chunk
+    n_chunks = int(padded_cnt.sum() // chunk)
+    dummy = n
+    pa = np.full(n_chunks * chunk, dummy, np.int64)
+    pb = np.full(n_chunks * chunk, dummy, np.int64)
+    dst = np.repeat(np.cumsum(padded_cnt) - padded_cnt, cnt) + (np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    pa[dst], pb[dst] = a, b
+    chunk_seg = np.repeat(useg, padded_cnt // chunk)
+    n_chunks_pad = ba_bucket(n_chunks + 1, minimum=8) if pad else n_chunks + 1
+    pa = np.r_[pa, np.full((n_chunks_pad - n_chunks) * chunk, dummy)]
+    pb = np.r_[pb, np.full((n_chunks_pad - n_chunks) * chunk, dummy)]
+    chunk_seg = np.r_[chunk_seg, np.zeros(n_chunks_pad - n_chunks, np.int64)]
+    return BAStructure(
+        pair_a=jnp.asarray(pa, jnp.int32), pair_b=jnp.asarray(pb, jnp.int32), chunk_seg=jnp.asarray(chunk_seg, jnp.int32)
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# jitted core
+
+
+def _sym3_inverse(A: Float[Array, "P 3 3"]) -> Float[Array, "P 3 3"]:
+    """Batched inverse of symmetric positive-definite 3×3 blocks (Jacobi scaling + adjugate)."""
+    d = jnp.sqrt(jnp.diagonal(A, axis1=1, axis2=2))  # (P, 3)
+    s = 1.0 / d
+    B = A * s[:, :, None] * s[:, None, :]
+    a, b, c = B[:, 0, 0], B[:, 0, 1], B[:, 0, 2]
+    e, f, i = B[:, 1, 1], B[:, 1, 2], B[:, 2, 2]
+    c00 = e * i - f * f
+    c01 = c * f - b * i
+    c02 = b * f - c * e
+    c11 = a * i - c * c
+    c12 = b * c - a * f
+    c22 = a * e - b * b
+    inv_det = 1.0 / (a * c00 + b * c01 + c * c02)
+    inv = jnp.stack(
+        [jnp.stack([c00, c01, c02], -1), jnp.stack([c01, c11, c12], -1), jnp.stack([c02, c12, c22], -1)], -2
+    ) * inv_det[:, None, None]
+    return inv * s[:, :, None] * s[:, None, :]
+
+
+def _project(
+    R: Float[Array, "O 3 3"], t: Float[Array, "O 3"], X: Float[Array, "O 3"], K: Float[Array, "O 5"]
+) -> tuple[Float[Array, "O 3"], Float[Array, "O 2"]]:
+    p_c = jnp.sum(R * X[:, None, :], axis=2) + t
+    inv_z = 1.0 / p_c[:, 2]
+    uv = jnp.stack([K[:, 0] * p_c[:, 0] * inv_z + K[:, 2], K[:, 1] * p_c[:, 1] * inv_z + K[:, 3]], axis=1)
+    return p_c, uv
+
+
+def _jacobians(
+    p_c: Float[Array, "O 3"], R: Float[Array, "O 3 3"], K: Float[Array, "O 5"]
+) -> tuple[Float[Array, "O 2 6"], Float[Array, "O 2 3"]]:
+    """Elementwise (vectorisable) form of :func:`~privslam_jax.geometry.projection.reprojection_jacobians`."""
+    x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
+    iz = 1.0 / z
+    fx, fy = K[:, 0], K[:, 1]
+    zero = jnp.zeros_like(x)
+    # d(u,v)/d p_c
+    Pu = jnp.stack([fx * iz, zero, -fx * x * iz * iz], -1)  # (O, 3)
+    Pv = jnp.stack([zero, fy * iz, -fy * y * iz * iz], -1)
+    Jp = jnp.stack([jnp.sum(Pu[:, :, None] * R, 1), jnp.sum(Pv[:, :, None] * R, 1)], 1)  # (O, 2, 3)
+
+    # d p_c / d(ρ, ω) = [I, −[p_c]×] and rowᵀ(−[p]×) = (p × row)ᵀ
+    Jc = jnp.stack(
+        [jnp.concatenate([Pu, jnp.cross(p_c, Pu)], -1), jnp.concatenate([Pv, jnp.cross(p_c, Pv)], -1)], 1
+    )
+    return Jc, Jp
+
+
+class _Lin(struct.PyTreeNode):
+    """A linearisation: the blocks of the normal equations and the cost."""
+
+    U: Array  # (M, 6, 6) camera blocks
+    V: Array  # (P, 3, 3) point blocks
+    W: Array  # (O, 6, 3) camera-point block of each observation
+    gc: Array  # (M, 6)
+    gp: Array  # (P, 3)
+    cost: Array  # ()
+
+
+class _Obs(struct.PyTreeNode):
+    """Padded observations with per-observation intrinsics and weights."""
+
+    cam: Array  # (O,) int32
+    pt: Array  # (O,) int32
+    uv: Array  # (O, 2)
+    isg: Array  # (O,) information, 0 for padded rows
+    K: Array  # (O, 5) intrinsics of the observing camera
+    valid: Array  # (O,) bool
+    free: Array  # (O,) 1.0 when the observing camera is free, else 0.0
+
+
+def _residuals(obs: _Obs, T: jaxlie.SE3, X: Array, config: _Params):
+    Rm = T.rotation().as_matrix()[obs.cam]
+    t = T.translation()[obs.cam]
+    p_c, uv = _project(Rm, t, X[obs.pt], obs.K)
+    e = uv - obs.uv
+    s = obs.isg * jnp.sum(e * e, axis=1)
+    front = p_c[:, 2] > config.min_depth
+    delta = config.huber_delta  # +inf for the squared loss
+    rho, behind = huber_rho(s, delta), huber_rho(config.behind_chi2, delta)
+    c = jnp.where(obs.valid, jnp.where(front, rho, behind), 0.0)
+    return Rm, p_c, e, s, front, 0.5 * jnp.sum(c)
+
+
+def _linearise(obs: _Obs, T: jaxlie.SE3, X: Array, n_cams: int, config: _Params) -> _Lin:
+    Rm, p_c, e, s, front, cost = _residuals(obs, T, X, config)
+    delta = config.huber_delta
+    w = obs.isg * jnp.where(s <= delta * delta, 1.0, delta / jnp.sqrt(jnp.maximum(s, delta * delta)))
+    w = jnp.where(front, w, 0.0)
+    Jc, Jp = _jacobians(p_c, Rm, obs.K)
+    Jc = Jc * obs.free[:, None, None]
+    wJc = Jc * w[:, None, None]
+    wJp = Jp * w[:, None, None]
+    U_o = jnp.sum(wJc[:, :, :, None] * Jc[:, :, None, :], axis=1)  # (O, 6, 6)
+    V_o = jnp.sum(wJp[:, :, :, None] * Jp[:, :, None, :], axis=1)  # (O, 3, 3)
+    W_o = jnp.sum(wJc[:, :, :, None] * Jp[:, :, None, :], axis=1)  # (O, 6, 3)
+    gc_o = jnp.sum(wJc * e[:, :, None], axis=1)
+    gp_o = jnp.sum(wJp * e[:, :, None], axis=1)
+    P = X.shape[0]
+    return _Lin(
+        U=jax.ops.segment_sum(U_o, obs.cam, n_cams),
+        V=jax.ops.segment_sum(V_o, obs.pt, P),
+        W=W_o,
+        gc=jax.ops.segment_sum(gc_o, obs.cam, n_cams),
+        gp=jax.ops.segment_sum(gp_o, obs.pt, P),
+        cost=cost,
+    )
+
+
+def _schur_off_diagonal(Y: Array, W: Array, structure: BAStructure, n_cams: int, chunk: int) -> Array:
+    """``X = Σ_{o<o'} Y_o W_o'ᵀ`` placed at block ``(c(o), c(o'))``, as a dense ``(6M, 6M)`` matrix."""
+    Ya = Y.reshape(-1, 18)[structure.pair_a].T.reshape(6, 3, -1)  # pair axis last: vectorises
+    Wb = W.reshape(-1, 18)[structure.pair_b].T.reshape(6, 3, -1)
+    prod = Ya[:, None, 0, :] * Wb[None, :, 0, :]
+    for k in (1, 2):
+        prod = prod + Ya[:, None, k, :] * Wb[None, :, k, :]  # (6, 6, Q)
+    prod = jnp.sum(prod.reshape(36, -1, chunk), axis=2).T  # (Q/chunk, 36)
+    Xs = jax.ops.segment_sum(prod, structure.chunk_seg, n_cams * n_cams, indices_are_sorted=True)
+    M = n_cams
+    return Xs.reshape(M, M, 6, 6).transpose(0, 2, 1, 3).reshape(6 * M, 6 * M)
+
+
+def _schur_solve(
+    obs: _Obs, lin: _Lin, lam: Array, fixed_cams: Array, structure: BAStructure, chunk: int
+) -> tuple[Array, Array, Array]:
+    """Solve the damped normal equations by the Schur complement; returns ``(ξ, δ, predicted decrease)``."""
+    M = fixed_cams.shape[0]
+    P = lin.V.shape[0]
+    dtype = lin.U.dtype
+    eye6 = jnp.eye(6, dtype=dtype)
+    dU = jnp.clip(jnp.diagonal(lin.U, axis1=1, axis2=2), 1e-6, 1e32)
+    dV = jnp.clip(jnp.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32)
+    Vinv = _sym3_inverse(lin.V + (lam * dV)[:, :, None] * jnp.eye(3, dtype=dtype)[None])
+    Y = jnp.sum(lin.W[:, :, :, None] * Vinv[obs.pt][:, None, :, :], axis=2)  # (O, 6, 3)
+    # materialise Y: otherwise XLA fuses its computation into every gather below (measured 3-5× slower)
+    Y, Vinv = jax.lax.optimization_barrier((Y, Vinv))
+    rc = -lin.gc + jax.ops.segment_sum(jnp.sum(Y * lin.gp[obs.pt][:, None, :], axis=2), obs.cam, M)
+    S_diag = jax.ops.segment_sum(jnp.sum(Y[:, :, None, :] * lin.W[:, None, :, :], axis=3), obs.cam, M)
+    X_off = _schur_off_diagonal(Y, lin.W, structure, M, chunk)
+    Ud = lin.U + (lam * dU)[:, :, None] * eye6[None] - S_diag
+    Ud = jnp.where(fixed_cams[:, None, None], eye6[None], Ud)
+    fixed6 = jnp.repeat(fixed_cams, 6)
+    S = _block_diag(Ud) - X_off - X_off.T
+    S = jnp.where(fixed6[:, None] | fixed6[None, :], jnp.eye(6 * M, dtype=dtype), S)
+    rc = jnp.where(fixed_cams[:, None], 0.0, rc).reshape(-1)
+    L = jnp.linalg.cholesky(S)
+    xi = jax.scipy.linalg.cho_solve((L, True), rc).reshape(M, 6)
+    # back-substitution for the points
+    rp = -lin.gp - jax.ops.segment_sum(jnp.sum(lin.W * xi[obs.cam][:, :, None], axis=1), obs.pt, P)
+    dp = jnp.sum(Vinv * rp[:, None, :], axis=2)
+    pred = 0.5 * (jnp.sum(xi * (lam * dU * xi - lin.gc)) + jnp.sum(dp * (lam * dV * dp - lin.gp)))
+    return xi, dp, pred
+
+
+class _Params(struct.PyTreeNode):
+    """The numeric fields of :class:`BAConfig` as traced values (changing them does not recompile)."""
+
+    max_iterations: Array
+    huber_delta: Array
+    chi2: Array
+    initial_damping: Array
+    function_tolerance: Array
+    parameter_tolerance: Array
+    target_cost: Array
+    min_depth: Array
+    behind_chi2: Array
+
+    @staticmethod
+    def of(config: BAConfig, dtype: jnp.dtype) -> "_Params":
+        f = lambda v: jnp.asarray(v, dtype)  # noqa: E731
+        return _Params(
+            max_iterations=jnp.asarray(config.max_iterations, jnp.int32),
+            huber_delta=f(jnp.inf if config.huber_delta is None else config.huber_delta),
+            chi2=f(config.chi2),
+            initial_damping=f(config.initial_damping),
+            function_tolerance=f(config.function_tolerance),
+            parameter_tolerance=f(config.parameter_tolerance),
+            target_cost=f(config.target_cost),
+            min_depth=f(config.min_depth),
+            behind_chi2=f(config.behind_chi2),
+        )
+
+
+def bundle_adjust_padded(
+    T_c_w: jaxlie.SE3,
+    points: Float[Array, "P 3"],
+    obs_cam: Int[Array, " O"],
+    obs_pt: Int[Array, " O"],
+    obs_uv: Float[Array, "O 2"],
+    obs_valid: Bool[Array, " O"],
+    obs_inv_sigma2: Float[Array, " O"],
+    fixed_cams: Bool[Array, " M"],
+    intrinsics: Float[Array, "M 5"],
+    structure: BAStructure,
+    config: BAConfig,
+) -> BAResult:
+    """Core of :func:`bundle_adjust` on padded arrays and a precomputed :class:`BAStructure` (jit-friendly).
+
+    Only ``config.chunk`` and the array shapes select the compiled program; the other settings are
+    passed as traced values, so changing them does not recompile.
+    """
+    params = _Params.of(config, points.dtype)
+    return _bundle_adjust_jit(
+        T_c_w, points, obs_cam, obs_pt, obs_uv, obs_valid, obs_inv_sigma2, fixed_cams, intrinsics, structure,
+        params, config.chunk,
+    )
+
+
+@partial(jax.jit, static_argnames=("chunk",))
+def _bundle_adjust_jit(
+    T_c_w: jaxlie.SE3,
+    points: Float[Array, "P 3"],
+    obs_cam: Int[Array, " O"],
+    obs_pt: Int[Array, " O"],
+    obs_uv: Float[Array, "O 2"],
+    obs_valid: Bool[Array, " O"],
+    obs_inv_sigma2: Float[Array, " O"],
+    fixed_cams: Bool[Array, " M"],
+    intrinsics: Float[Array, "M 5"],
+    structure: BAStructure,
+    config: _Params,
+    chunk: int,
+) -> BAResult:
+    dtype = points.dtype
+    M = fixed_cams.shape[0]
+    obs = _Obs(
+        cam=obs_cam,
+        pt=obs_pt,
+        uv=obs_uv.astype(dtype),
+        isg=jnp.where(obs_valid, obs_inv_sigma2.astype(dtype), 0.0),
+        K=intrinsics.astype(dtype)[obs_cam],
+        valid=obs_valid,
+        free=(~fixed_cams)[obs_cam].astype(dtype),
+    )
+    T0 = jax.tree.map(lambda a: jnp.asarray(a, dtype), T_c_w)
+    lin0 = _linearise(obs, T0, points, M, config)
+    one = jnp.asarray(1.0, dtype)
+    init = (T0, points, lin0, one * config.initial_damping, 2.0 * one, jnp.asarray(0), jnp.asarray(False))
+
+    def cond(st):
+        return (st[5] < config.max_iterations) & ~st[6] & (st[2].cost > config.target_cost)
+
+    def body(st):
+        T, X, lin, lam, nu, it, _ = st
+        xi, dp, pred = _schur_solve(obs, lin, lam, fixed_cams, structure, chunk)
+        T_new, X_new = jax.vmap(lambda v, Tc: jaxlie.SE3.exp(v) @ Tc)(xi, T), X + dp
+        cost_new = _residuals(obs, T_new, X_new, config)[-1]
+        ok = jnp.isfinite(cost_new) & jnp.all(jnp.isfinite(xi)) & jnp.all(jnp.isfinite(dp))
+        accept = ok & (cost_new < lin.cost)
+        # re-linearise only after an accepted step (a rejected one costs a residual evaluation)
+        lin_new = jax.lax.cond(accept, lambda: _linearise(obs, T_new, X_new, M, config), lambda: lin)
+        gain = (lin.cost - cost_new) / jnp.maximum(pred, jnp.finfo(dtype).tiny)
+        lam_acc = lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+        x_norm = jnp.sqrt(jnp.sum(X * X) + jnp.sum(T.wxyz_xyz**2))
+        step = jnp.sqrt(jnp.sum(xi * xi) + jnp.sum(dp * dp))
+        small_step = ok & (step <= config.parameter_tolerance * (x_norm + config.parameter_tolerance))
+        small_dec = accept & ((lin.cost - cost_new) <= config.function_tolerance * lin.cost)
+        done = small_step | small_dec | (lam > 1e32)
+        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(accept, x, y), a, b)  # noqa: E731
+        return (
+            pick(T_new, T),
+            pick(X_new, X),
+            lin_new,
+            jnp.where(accept, lam_acc, lam * nu),
+            jnp.where(accept, 2.0 * one, nu * 2.0),
+            it + 1,
+            done,
+        )
+
+    T_f, X_f, lin_f, _, _, it_f, _ = jax.lax.while_loop(cond, body, init)
+    _, _, _, s, front, _ = _residuals(obs, T_f, X_f, config)
+    inl = obs_valid & front & (s < config.chi2)
+    return BAResult(T_c_w=T_f, points=X_f, cost=lin_f.cost, initial_cost=lin0.cost, inliers=inl, iterations=it_f)
+
+
+def _block_diag(B: Float[Array, "M 6 6"]) -> Float[Array, "N N"]:
+    M = B.shape[0]
+    eyeM = jnp.eye(M, dtype=B.dtype)
+    return (eyeM[:, None, :, None] * B[:, :, None, :]).reshape(6 * M, 6 * M)
+
+
+def _check(name: str, a: np.ndarray, shape: tuple[int, ...]) -> None:
+    if a.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
+
+
+def bundle_adjust(
+    T_c_w: jaxlie.SE3,
+    points: ArrayLike,
+    obs_cam: ArrayLike,
+    obs_pt: ArrayLike,
+    obs_uv: ArrayLike,
+    obs_valid: ArrayLike | None,
+    fixed_cams: ArrayLike,
+    camera: Camera | ArrayLike,
+    config: BAConfig = BAConfig(),
+    *,
+    obs_inv_sigma2: ArrayLike | None = None,
+    pad: bool = True,
+) -> BAResult:
+    """Bundle adjustment (host entry point): checks, pads to buckets, runs the jitted LM, unpads.
+
+    Args:
+      T_c_w: ``M`` world-to-camera poses (``jaxlie.SE3`` with batch axis ``M``).
+      points: ``(P, 3)`` world points.
+      obs_cam, obs_pt: ``(O,)`` integer camera and point index of each observation.
+      obs_uv: ``(O, 2)`` observed pixels.
+      obs_valid: ``(O,)`` bool mask of real observations, or ``None``.
+      fixed_cams: ``(M,)`` bool, cameras held fixed (gauge: fix at least one; monocular: the scale is
+        then still free and only damped).
+      camera: one :class:`Camera` for all, or ``(M, 4|5)`` per-camera ``(fx, fy, cx, cy[, baseline])``.
+      config: solver settings.
+      obs_inv_sigma2: ``(O,)`` information ``1/σ²`` per observation (default 1).
+      pad: pad sizes to buckets (``False``: exact sizes, e.g. for one large problem).
+
+    Returns the unpadded :class:`BAResult` (``M`` poses, ``P`` points, ``O`` inliers).
+    """
+    pts = np.asarray(points)
+    n_p = pts.shape[0] if pts.ndim == 2 else -1
+    _check("points", pts, (n_p, 3))
+    wxyz = np.asarray(T_c_w.wxyz_xyz)
+    if wxyz.ndim != 2:
+        raise ValueError(f"T_c_w must be a batch of poses (M,), got wxyz_xyz shape {wxyz.shape}")
+    n_c = wxyz.shape[0]
+    oc = np.asarray(obs_cam)
+    op = np.asarray(obs_pt)
+    n_o = oc.shape[0] if oc.ndim == 1 else -1
+    _check("obs_cam", oc, (n_o,))
+    _check("obs_pt", op, (n_o,))
+    uv = np.asarray(obs_uv)
+    _check("obs_uv", uv, (n_o, 2))
+    valid = np.ones(n_o, bool) if obs_valid is None else np.asarray(obs_valid)
+    _check("obs_valid", valid, (n_o,))
+    fixed = np.asarray(fixed_cams)
+    _check("fixed_cams", fixed, (n_c,))
+    if valid.dtype != np.bool_ or fixed.dtype != np.bool_:
+        raise ValueError("obs_valid and fixed_cams must be bool arrays")
+    if not np.issubdtype(oc.dtype, np.integer) or not np.issubdtype(op.dtype, np.integer):
+        raise ValueError("obs_cam and obs_pt must be integer arrays")
+    isg = np.ones(n_o) if obs_inv_sigma2 is None else np.asarray(obs_inv_sigma2)
+    _check("obs_inv_sigma2", isg, (n_o,))
+    if isinstance(camera, Camera):
+        b = 0.0 if camera.baseline is None else camera.baseline
+        intr = np.tile(np.array([camera.fx, camera.fy, camera.cx, camera.cy, b], np.float64), (n_c, 1))
+    else:
+        intr = np.asarray(camera, np.float64)
+        if intr.shape not in ((n_c, 4), (n_c, 5)):
+            raise ValueError(f"per-camera intrinsics must have shape ({n_c}, 4) or ({n_c}, 5), got {intr.shape}")
+        if intr.shape[1] == 4:
+            intr = np.concatenate([intr, np.zeros((n_c, 1))], 1)
+    oc, op, uv, isg = oc[valid], op[valid], uv[valid], isg[valid]
+    if oc.size and (oc.min() < 0 or oc.max() >= n_c or op.min() < 0 or op.max() >= n_p):
+        raise ValueError(f"observation indices out of range (cameras [0, {n_c}), points [0, {n_p}))")
+    if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(uv)) and np.all(np.isfinite(wxyz))):
+        raise ValueError("points, obs_uv or T_c_w contain NaN/inf")
+    if not np.all(np.isfinite(isg)) or np.any(isg <= 0):
+        raise ValueError("obs_inv_sigma2 must be finite and positive")
+    if not np.all(np.isfinite(intr)):
+        raise ValueError("camera intrinsics contain NaN/inf")
+    if not np.any(fixed):
+        raise ValueError("fix at least one camera (gauge freedom)")
+
+    dtype = jnp.asarray(pts if np.issubdtype(pts.dtype, np.floating) else pts.astype(float)).dtype
+    m_pad = ba_bucket(n_c) if pad else n_c
+    p_pad = ba_bucket(n_p, minimum=8) if pad else n_p
+    o_pad = ba_bucket(oc.size + 1, minimum=8) if pad else oc.size + 1
+    n_v = oc.size
+
+    def padded(a: np.ndarray, n: int, fill: float | int | bool) -> np.ndarray:
+        out = np.full((n,) + a.shape[1:], fill, dtype=a.dtype)
+        out[: a.shape[0]] = a
+        return out
+
+    wxyz_p = padded(wxyz, m_pad, 0.0)
+    wxyz_p[n_c:, 0] = 1.0
+    fixed_p = padded(fixed, m_pad, True)
+    intr_p = padded(intr, m_pad, 1.0)
+    pts_p = padded(pts, p_pad, 0.0)
+    pts_p[n_p:, 2] = 1.0
+    structure = analyze(oc, op, m_pad, o_pad, config.chunk, pad=pad)
+    res = bundle_adjust_padded(
+        jaxlie.SE3(jnp.asarray(wxyz_p, dtype)),
+        jnp.asarray(pts_p, dtype),
+        jnp.asarray(padded(oc.astype(np.int32), o_pad, 0)),
+        jnp.asarray(padded(op.astype(np.int32), o_pad, 0)),
+        jnp.asarray(padded(uv, o_pad, 0.0), dtype),
+        jnp.asarray(padded(np.ones(n_v, bool), o_pad, False)),
+        jnp.asarray(padded(isg, o_pad, 1.0), dtype),
+        jnp.asarray(fixed_p),
+        jnp.asarray(intr_p, dtype),
+        structure,
+        config,
+    )
+    inl = np.zeros(n_o, bool)
+    inl[valid] = np.asarray(res.inliers)[:n_v]
+    return res.replace(
+        T_c_w=jaxlie.SE3(res.T_c_w.wxyz_xyz[:n_c]), points=res.points[:n_p], inliers=jnp.asarray(inl)
+    )
