@@ -61,3 +61,17 @@ def test_clean_errors(tmp_path, capsys):
     save_point_cloud(tmp_path / "q.ply", PointCloud(xyz=jnp.zeros((5, 3))))
     assert main(["eval-points", str(tmp_path / "p.ply"), str(tmp_path / "q.ply")]) == 2
     assert "5" in capsys.readouterr().err
+
+
+def test_lift_reads_bal_points(tmp_path, capsys):
+    # a hand-written BAL problem: 1 camera, 3 points, 2 observations
+    text = "1 3 2\n0 0 1.0 2.0\n0 1 -1.0 0.5\n" + "\n".join(["0"] * 6 + ["700", "0", "0"]) + "\n"
+    pts = np.array([[1.0, 2.0, 10.0], [-3.0, 0.5, 20.0], [4.0, -1.0, 15.0]])
+    text += "\n".join(f"{v:.6f}" for v in pts.ravel()) + "\n"
+    (tmp_path / "map.bal").write_text(text)
+    assert main(["lift", str(tmp_path / "map.bal"), "--out", str(tmp_path / "l.ply"), "--seed", "0"]) == 0
+    lines = load_line_cloud(tmp_path / "l.ply")
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    assert np.max(np.linalg.norm(np.cross(pts, d) - m, axis=1)) < 1e-4
+    assert main(["lift", str(tmp_path / "nope.bal"), "--out", str(tmp_path / "x.ply")]) == 2
+    assert "nope.bal" in capsys.readouterr().err

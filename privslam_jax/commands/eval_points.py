@@ -20,7 +20,7 @@ __all__ = ["add_parser", "run"]
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("eval-points", help="point-recovery metrics (JSON)", description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("original", type=Path, help="original point cloud, PLY")
+    p.add_argument("original", type=Path, help="original point cloud: PLY, or a BAL problem (its points)")
     p.add_argument("recovered", type=Path, help="recovered point cloud, PLY (point i from line i)")
     p.add_argument("--lines", type=Path, default=None, help="the line cloud, PLY: adds the no-attack baselines")
     p.set_defaults(func=run)
@@ -29,10 +29,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from privslam_jax.commands.lift import load_points
     from privslam_jax.data.ply import load_line_cloud, load_point_cloud
     from privslam_jax.metrics.privacy import baseline_points, point_recovery_metrics
 
-    orig = np.asarray(load_point_cloud(args.original).xyz)
+    orig = np.asarray(load_points(args.original).xyz)
     rec = np.asarray(load_point_cloud(args.recovered).xyz)
     if orig.shape != rec.shape:
         raise ValueError(f"{args.original} has {len(orig)} points but {args.recovered} has {len(rec)}")

@@ -4,7 +4,8 @@ Line ``i`` is written as vertices ``2i``, ``2i+1`` (its canonical unit segment, 
 line's closest point to the origin) and edge ``i``; it corresponds to point ``i``.
 ``--method random`` (default): a uniformly random direction through each point;
 ``--method paired``: paired-point lifting (Lee et al., CVPR 2023), one line through each random
-pair of points.  Without ``--seed`` the key comes from OS entropy (the secure default); a seed
+pair of points.  POINTS may also be a BAL problem (``*.bal``, ``*.bal.txt``, optionally ``.bz2``):
+its 3D points are lifted.  Without ``--seed`` the key comes from OS entropy (the secure default); a seed
 makes the lift reproducible and is for experiments only.
 """
 
@@ -14,13 +15,44 @@ import argparse
 import sys
 from pathlib import Path
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "load_points"]
+
+
+def load_points(path: Path):
+    """Points of a PLY point cloud, or of a BAL problem (``.bal``/``.bal.txt``, optionally ``.bz2``)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from privslam_jax.data.ply import load_point_cloud
+    from privslam_jax.types import PointCloud
+
+    name = Path(path).name.lower()
+    if not (name.endswith(".bal") or ".bal." in name):
+        return load_point_cloud(path)
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"BAL file not found: {path}")
+    try:
+        from privslam_jax.data.bal import read_bal
+
+        xyz = np.asarray(read_bal(path).points)
+    except ImportError:  # minimal reader: header, observations, cameras, points
+        import bz2
+
+        opener = bz2.open if name.endswith(".bz2") else open
+        tok = opener(path, "rt").read().split()
+        try:
+            n_cams, n_pts, n_obs = (int(x) for x in tok[:3])
+            start = 3 + 4 * n_obs + 9 * n_cams
+            xyz = np.asarray(tok[start : start + 3 * n_pts], np.float64).reshape(n_pts, 3)
+        except ValueError as err:
+            raise ValueError(f"{path}: not a valid BAL file ({err})") from err
+    return PointCloud(xyz=jnp.asarray(xyz.astype(np.float32)))
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("lift", help="lift a point cloud (PLY) to a line cloud (PLY)", description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("points", type=Path, help="input point cloud, PLY")
+    p.add_argument("points", type=Path, help="input point cloud: PLY, or a BAL problem (its points)")
     p.add_argument("--out", type=Path, required=True, help="output line cloud, PLY")
     p.add_argument("--method", choices=("random", "paired"), default="random", help="lift (default random)")
     p.add_argument("--seed", type=int, default=None, help="fixed seed (experiments only; default: OS entropy)")
@@ -29,10 +61,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from privslam_jax.data.ply import load_point_cloud, save_line_cloud
+    from privslam_jax.data.ply import save_line_cloud
     from privslam_jax.privacy.lift import entropy_key, fixed_key, paired_lift, random_lift
 
-    cloud = load_point_cloud(args.points)
+    cloud = load_points(args.points)
     if args.seed is None:
         key = entropy_key()
     else:
