@@ -51,8 +51,10 @@ SCALES: dict[str, tuple[float, float, int]] = {
     "m": (0.67, 0.75, 768),
     "l": (1.00, 1.00, 512),
     "x": (1.00, 1.25, 512),
+    "tiny": (0.33, 0.0625, 1024),
 }
-"""``scale -> (depth multiple, width multiple, max channels)`` from ``yolov8.yaml``."""
+"""``scale -> (depth multiple, width multiple, max channels)`` from ``yolov8.yaml``; ``tiny`` (not in
+the yaml: 8-64 channels) is a test-only variant for fast training tests."""
 
 TORCH_LAYER_NAMES: dict[int, str] = {
     0: "stem", 1: "down1", 2: "c2f1", 3: "down2", 4: "c2f2", 5: "down3", 6: "c2f3", 7: "down4",
@@ -75,7 +77,7 @@ class YOLOv8Config:
     num_classes: int = 80
     """Number of object classes ``nc`` (COCO: 80)."""
     scale: str = "n"
-    """Model scale, one of ``n s m l x`` (depth/width multiples from ``yolov8.yaml``)."""
+    """Model scale, one of ``n s m l x`` (depth/width multiples from ``yolov8.yaml``) or ``tiny`` (tests)."""
     reg_max: int = 16
     """DFL bins per box side."""
 
