@@ -13,6 +13,7 @@ from privslam_jax.inpaint.edgeconnect import (
 )
 from privslam_jax.inpaint.weights import load_npz, load_state_dict
 from privslam_jax.inpaint.baselines import LEAKY_METHODS, METHODS, SAFE_METHODS, fill
+from privslam_jax.inpaint.data import CropBank, FolderData
 from privslam_jax.inpaint.crops import CropBox, crop_box, extract, paste_back
 from privslam_jax.inpaint.filter import (
     FILTER_METHODS,
@@ -48,7 +49,10 @@ __all__ = [
     "LEAKY_METHODS",
     "METHODS",
     "SAFE_METHODS",
+    "CropBank",
     "CropBox",
+    "FolderData",
+    "evaluate_frames",
     "Inpainter",
     "InpainterConfig",
     "InpaintTrainer",
@@ -92,3 +96,4 @@ __all__ = [
 
 # ``train`` itself stays in privslam_jax.inpaint.train (a same-named attribute would shadow the module)
 from privslam_jax.inpaint.train import InpaintTrainer, TrainConfig, prepare_batch  # noqa: E402
+from privslam_jax.inpaint.evaluate import evaluate_frames  # noqa: E402
