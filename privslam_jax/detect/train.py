@@ -200,6 +200,11 @@ def _schedule(cfg: TrainConfig, step: int, steps_per_epoch: int) -> tuple[dict[s
     return {"decay": lr, "no_decay": lr, "bias": lr}, cfg.momentum
 
 
+def _strong(tree):
+    """Strongly typed copies of every leaf, so a restored state hits the same compiled step."""
+    return jax.tree.map(lambda x: jnp.array(np.asarray(x), dtype=np.asarray(x).dtype), tree)
+
+
 _STEP_CACHE: dict = {}
 """Jitted train steps by (graph, weight decay, shapes, EMA decay): a resumed run reuses the compiled step."""
 
@@ -249,7 +254,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
     tx = _make_tx(nnx.to_pure_dict(params), cfg.weight_decay * cfg.batch_size / 64)
     state = {"params": nnx.to_pure_dict(params), "stats": nnx.to_pure_dict(stats), "opt": tx.init(nnx.to_pure_dict(params)),
              "ema_params": jax.tree.map(jnp.copy, nnx.to_pure_dict(params)),
-             "ema_stats": jax.tree.map(jnp.copy, nnx.to_pure_dict(stats)), "step": jnp.asarray(0)}
+             "ema_stats": jax.tree.map(jnp.copy, nnx.to_pure_dict(stats)), "step": jnp.asarray(0, jnp.int32)}
+    state = _strong(state)
     feat_shapes = tuple((cfg.imgsz // s, cfg.imgsz // s) for s in (8, 16, 32))
     loss_cfg = LossConfig()
 
@@ -259,7 +265,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
 
         mngr = ocp.CheckpointManager(Path(cfg.ckpt_dir).resolve(), options=ocp.CheckpointManagerOptions(max_to_keep=2))
         if mngr.latest_step() is not None:
-            state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
+            state = _strong(mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state)))
 
     key = (graphdef, cfg.weight_decay * cfg.batch_size / 64, feat_shapes, cfg.ema_decay)
     if key not in _STEP_CACHE:
