@@ -35,7 +35,7 @@ def test_class_count_changes_only_the_class_branch():
 
 
 def test_output_shapes_and_decode():
-    model = init_yolov8(YOLOv8Config(num_classes=3), seed=1)
+    model = init_yolov8(YOLOv8Config(num_classes=3, scale="tiny"), seed=1)
     model.eval()
     x = jnp.asarray(np.random.default_rng(0).random((2, 64, 96, 3), np.float32))
     graphdef, state = nnx.split(model)
@@ -50,7 +50,7 @@ def test_output_shapes_and_decode():
 
 def test_init_matches_module_constructor_distributions():
     # host-side init vs the NNX constructor: same shapes, same bias constants, kernel bounds 1/sqrt(fan_in)
-    cfg = YOLOv8Config(num_classes=2)
+    cfg = YOLOv8Config(num_classes=2, scale="tiny")
     host = init_yolov8(cfg, seed=0)
     ref = abstract_yolov8(cfg)
     assert jax.tree.map(lambda a: a.shape, nnx.state(host)) == jax.tree.map(lambda a: a.shape, nnx.state(ref))
@@ -61,7 +61,7 @@ def test_init_matches_module_constructor_distributions():
 
 
 def test_bad_input_and_config():
-    model = abstract_yolov8(YOLOv8Config(num_classes=1))
+    model = abstract_yolov8(YOLOv8Config(num_classes=1, scale="tiny"))
     with pytest.raises(ValueError, match="multiples of 32"):
         model(jnp.zeros((1, 50, 64, 3)))
     with pytest.raises(ValueError, match="scale"):
