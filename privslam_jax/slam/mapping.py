@@ -267,7 +267,10 @@ class Map:
     def point_cloud(self) -> PointCloud:
         """The good map points with their observation counts."""
         good = ~self.bad & (self.n_obs > 0)
-        return PointCloud(xyz=self.xyz[good].astype(np.float32), observations=self.n_obs[good].astype(np.int32))
+        import jax.numpy as jnp
+
+        return PointCloud(xyz=jnp.asarray(self.xyz[good], jnp.float32),
+                          observations=jnp.asarray(self.n_obs[good], jnp.int32))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -441,8 +444,12 @@ def _matrices_from_se3(wxyz_xyz: np.ndarray) -> np.ndarray:
     return T
 
 
-def _pow2(n: int) -> int:
-    return 1 << max(3, int(np.ceil(np.log2(max(n, 1)))))
+def _pow2(n: int, minimum: int = 8) -> int:
+    """The smallest ``minimum·4^k ≥ n`` (coarse buckets: few compilations, ≤ 4× padding)."""
+    b = minimum
+    while b < n:
+        b *= 4
+    return b
 
 
 def _pad_ba_problem(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera):
@@ -461,7 +468,7 @@ def _pad_ba_problem(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, c
 
     chunk = _C().chunk
     m = len(T_c_w)
-    n_cams = max(48, _pow2(m + 28))
+    n_cams = _pow2(m + 28, 64)
     dummy = np.arange(m, n_cams)
     ia, ib = np.triu_indices(len(dummy), 1)
     seg_a, seg_b = dummy[ia], dummy[ib]  # one Schur chunk per distinct dummy camera pair
@@ -471,16 +478,16 @@ def _pad_ba_problem(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, c
         n_chunks = None
     extra_pairs = 0
     if n_chunks is not None:
-        extra_pairs = _pow2(n_chunks + 2) - 1 - n_chunks
+        extra_pairs = _pow2(n_chunks + 2, 512) - 1 - n_chunks
         if extra_pairs > len(seg_a):
             extra_pairs = 0
     cam_a = np.concatenate([seg_a[:extra_pairs]])
     cam_b = np.concatenate([seg_b[:extra_pairs]])
     n_obs_after_pairs = len(obs_cam) + 2 * extra_pairs
-    target_obs = _pow2(n_obs_after_pairs + 1) - 1
+    target_obs = _pow2(n_obs_after_pairs + 1, 8192) - 1
     singles = target_obs - n_obs_after_pairs
     n_dummy_pts = extra_pairs + singles
-    target_pts = _pow2(len(points) + n_dummy_pts)
+    target_pts = _pow2(len(points) + n_dummy_pts, 8192)
     T = np.concatenate([T_c_w, np.tile(np.eye(4), (n_cams - m, 1, 1))])
     fx = np.concatenate([fixed, np.ones(n_cams - m, bool)])
     X = np.concatenate([points, np.tile([0.0, 0.0, 10.0], (target_pts - len(points), 1))])

@@ -21,12 +21,11 @@ from __future__ import annotations
 import dataclasses
 
 import cv2
-import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
 from privslam_jax.slam.frontend import TH_HIGH, TH_LOW, Features, match_descriptors, search_by_projection
-from privslam_jax.slam.mapping import Map, camera_center, project
+from privslam_jax.slam.mapping import Map, _matrices_from_se3, _se3_from_matrices, camera_center, project
 from privslam_jax.slam.refine import RefineConfig
 from privslam_jax.slam.refine import refine_pose as _jax_refine_pose
 from privslam_jax.types import Camera
@@ -95,11 +94,11 @@ def refine_pose(T_c_w: np.ndarray, xyz: np.ndarray, uv: np.ndarray, octave: np.n
     if n < 4:
         return T_c_w, np.zeros(n, bool)
     inv_s2 = scale_factor ** (-2.0 * octave)
-    T0 = jaxlie.SE3.from_matrix(jnp.asarray(T_c_w, jnp.float32))
+    T0 = jaxlie.SE3(_se3_from_matrices(T_c_w[None]).wxyz_xyz[0])
     res = _jax_refine_pose(T0, xyz.astype(np.float32), uv.astype(np.float32), None, camera, _REFINE_CONFIG,
                            u_right=None if u_right is None else u_right.astype(np.float32),
                            inv_sigma2=inv_s2.astype(np.float32), buckets=_REFINE_BUCKETS)
-    T = np.asarray(res.T_c_w.as_matrix(), np.float64)
+    T = _matrices_from_se3(np.asarray(res.T_c_w.wxyz_xyz, np.float64)[None])[0]
     if not np.isfinite(T).all():
         return T_c_w, np.zeros(n, bool)
     return T, np.asarray(res.inliers, bool)

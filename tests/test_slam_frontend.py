@@ -1,0 +1,122 @@
+"""SLAM front end: descriptor distances, projection search, stereo depth, ORB grid distribution."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from privslam_jax.slam.frontend import (
+    Features,
+    OrbConfig,
+    extract_orb,
+    hamming_pairs,
+    rotation_consistent,
+    search_by_projection,
+    stereo_depths,
+    to_gray_u8,
+)
+
+
+def _random_features(rng: np.random.Generator, n: int, w: float = 200.0, h: float = 100.0) -> Features:
+    return Features(
+        uv=rng.uniform([0, 0], [w, h], (n, 2)),
+        octave=rng.integers(0, 3, n),
+        angle=rng.uniform(0, 360, n),
+        desc=rng.integers(0, 256, (n, 32), dtype=np.uint8),
+    )
+
+
+def test_hamming_pairs_matches_opencv():
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 256, (50, 32), dtype=np.uint8)
+    b = rng.integers(0, 256, (50, 32), dtype=np.uint8)
+    ref = [cv2.norm(a[i], b[i], cv2.NORM_HAMMING) for i in range(50)]
+    np.testing.assert_array_equal(hamming_pairs(a, b), np.array(ref, np.int64))
+
+
+def test_search_by_projection_equals_brute_force():
+    rng = np.random.default_rng(1)
+    feats = _random_features(rng, 300)
+    m = 120
+    src = rng.integers(0, 300, m)
+    # queries near keypoints, descriptors a few bits away from theirs
+    uv = feats.uv[src] + rng.normal(0, 2.0, (m, 2))
+    desc = feats.desc[src].copy()
+    flip = rng.integers(0, 32, (m, 3))
+    for i in range(m):
+        desc[i, flip[i]] ^= 1
+    radius = np.full(m, 6.0)
+    lo, hi = np.zeros(m, np.int64), np.full(m, 2, np.int64)
+    kp, dist = search_by_projection(uv, desc, radius, feats, lo, hi, max_dist=100, ratio=0.8)
+    # plain-numpy reference: best/second-best within the radius, then one point per keypoint
+    best = np.full(m, -1)
+    bestd = np.full(m, 10**6)
+    for i in range(m):
+        near = np.flatnonzero(np.linalg.norm(feats.uv - uv[i], axis=1) <= 6.0)
+        if near.size == 0:
+            continue
+        d = np.array([cv2.norm(desc[i], feats.desc[j], cv2.NORM_HAMMING) for j in near])
+        o = np.lexsort((near, d))
+        second = d[o[1]] if near.size > 1 else 10**6
+        if d[o[0]] <= 100 and d[o[0]] < 0.8 * second:
+            best[i], bestd[i] = near[o[0]], d[o[0]]
+    for j in np.unique(best[best >= 0]):
+        owners = np.flatnonzero(best == j)
+        keep = owners[np.lexsort((owners, bestd[owners]))[0]]
+        best[owners[owners != keep]] = -1
+    np.testing.assert_array_equal(kp, best)
+    assert (kp == src).mean() > 0.8
+
+
+def test_rotation_consistency_keeps_the_dominant_rotation():
+    rng = np.random.default_rng(2)
+    a = rng.uniform(0, 360, 200)
+    b = np.mod(a - 30.0 + rng.normal(0, 2, 200), 360)
+    b[:20] = rng.uniform(0, 360, 20)  # outliers
+    keep = rotation_consistent(a, b)
+    assert keep[20:].mean() > 0.95
+    assert keep[:20].mean() < 0.5
+
+
+def test_stereo_depth_of_a_shifted_texture():
+    rng = np.random.default_rng(3)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (160, 400)).astype(np.float32), (0, 0), 1.5)
+    left = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    disparity = 12.4  # sub-pixel shift of the whole image
+    M = np.float32([[1, 0, -disparity], [0, 1, 0]])
+    right = cv2.warpAffine(left, M, (400, 160), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    cfg = OrbConfig(n_features=500)
+    fl, fr = extract_orb(left, cfg), extract_orb(right, cfg)
+    fx, b = 400.0, 0.5
+    z = stereo_depths(left, right, fl, fr, fx, b)
+    ok = np.isfinite(z)
+    assert ok.sum() > 0.3 * len(fl)
+    d = fx * b / z[ok]
+    assert np.median(np.abs(d - disparity)) < 0.25
+
+
+def test_orb_grid_distribution_on_kitti(shared):
+    path = shared / "data/kitti_odometry/sequences/seq1/image_0/000000.png"
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    cfg = OrbConfig()
+    f = extract_orb(gray, cfg)
+    assert 1800 <= len(f) <= cfg.n_features
+    assert f.desc.shape == (len(f), 32) and f.desc.dtype == np.uint8
+    assert set(np.unique(f.octave)) <= set(range(8)) and f.octave.max() >= 5
+    # more of the image covered than OpenCV's plain ORB with the same budget
+    plain = cv2.ORB_create(nfeatures=cfg.n_features, scaleFactor=1.2, nlevels=8).detect(gray, None)
+    pts = np.array([k.pt for k in plain])
+
+    def cells(uv: np.ndarray) -> int:
+        return len({(int(u // 40), int(v // 40)) for u, v in uv})
+
+    assert cells(f.uv) > cells(pts)
+
+
+def test_bad_image_input():
+    with pytest.raises(ValueError, match="image"):
+        to_gray_u8(np.zeros((4, 4, 2), np.float32))
+    with pytest.raises(ValueError, match="grey uint8"):
+        extract_orb(np.zeros((10, 10), np.float32))
+    assert to_gray_u8(np.full((5, 6, 3), 1.0, np.float32)).max() == 255
