@@ -275,27 +275,42 @@ def place_objects(
     return objs
 
 
-def object_poses(objs: list[ObjectSpec], path: StreetPath, t: float, s_cam: float, speed: float):
-    """Positions ``(N, 2)``, yaws ``(N,)``, base heights ``(N,)`` of all objects at time ``t``."""
-    n = len(objs)
-    pos = np.zeros((n, 2))
-    yaw = np.zeros(n)
-    base = np.zeros(n)
-    for i, o in enumerate(objs):
-        base[i] = o.base_y
-        if o.motion == 0:
-            pos[i], yaw[i] = o.p0, o.yaw
-        elif o.motion == 1:
-            pos[i], yaw[i] = o.p0 + o.vel * t, o.yaw
-        else:
-            if o.motion == 2:
-                s = o.s0 + o.speed * t
-            else:
-                s = s_cam + o.s0 + 4.0 * np.sin(0.25 * t + o.phase)
-            p, tan = path.evaluate(np.array(s), o.lateral)
-            pos[i] = p
-            yaw[i] = np.arctan2(tan[0], tan[1]) + o.yaw
-    return pos, yaw, base
+class ObjectTable:
+    """The objects of a sequence as stacked arrays (vectorised per-frame posing)."""
+
+    def __init__(self, objs: list[ObjectSpec]):
+        n = len(objs)
+        self.n = n
+        self.classes = np.array([o.class_id for o in objs], np.int32)
+        self.motion = np.array([o.motion for o in objs], np.int32)
+        self.p0 = np.array([o.p0 for o in objs], np.float64).reshape(n, 2)
+        self.vel = np.array([o.vel for o in objs], np.float64).reshape(n, 2)
+        self.yaw = np.array([o.yaw for o in objs], np.float64)
+        self.base = np.array([o.base_y for o in objs], np.float64)
+        self.s0 = np.array([o.s0 for o in objs], np.float64)
+        self.speed = np.array([o.speed for o in objs], np.float64)
+        self.lateral = np.array([o.lateral for o in objs], np.float64)
+        self.gait = np.array([o.gait for o in objs], np.float64)
+        self.phase = np.array([o.phase for o in objs], np.float64)
+        self.prisms = np.array([o.prisms for o in objs], np.float64).reshape(n, NB, 13)
+        self.ellipsoids = np.array([o.ellipsoids for o in objs], np.float64).reshape(n, NE, 17)
+
+
+def object_poses(tab: ObjectTable, path: StreetPath, t: float, s_cam: float):
+    """Positions ``(N, 2)``, yaws ``(N,)``, base heights ``(N,)`` of all objects at time ``t``.
+
+    Motion: 0 static, 1 linear ``p0 + v t``, 2 along the path ``s0 + speed·t`` at ``lateral``,
+    3 lead car ``s_cam + s0 + 4 sin(0.25 t + phase)``; path-following yaw = tangent heading + ``yaw``.
+    """
+    pos = tab.p0 + tab.vel * t
+    yaw = tab.yaw.copy()
+    on_path = tab.motion >= 2
+    if on_path.any():
+        s = np.where(tab.motion == 2, tab.s0 + tab.speed * t, s_cam + tab.s0 + 4.0 * np.sin(0.25 * t + tab.phase))[on_path]
+        p, tan = path.evaluate(s, tab.lateral[on_path])
+        pos[on_path] = p
+        yaw[on_path] = np.arctan2(tan[:, 0], tan[:, 1]) + tab.yaw[on_path]
+    return pos, yaw, tab.base.copy()
 
 
 def _rot_y(yaw):
@@ -324,7 +339,7 @@ def select_visible(pos, base, classes, cam_xz, cam_yaw, tan_half: float, max_ran
     return idx[:k]
 
 
-def frame_primitives(objs, sel, pos, yaw, base, t: float, k: int):
+def frame_primitives(tab: ObjectTable, sel: np.ndarray, pos, yaw, base, t: float, k: int):
     """Pack the primitives of the selected objects into ``(k·NB, F)`` prism and ``(k·NE, F)`` ellipsoid tables."""
     prisms = np.zeros((k, NB, F), np.float64)
     ells = np.zeros((k, NE, F), np.float64)
@@ -332,31 +347,31 @@ def frame_primitives(objs, sel, pos, yaw, base, t: float, k: int):
     ells[:, :, 6:15] = np.eye(3).reshape(9)
     prisms[:, :, 6:15] = np.eye(3).reshape(9)
     ids = np.zeros(k, np.int32)
-    for slot, i in enumerate(sel):
-        o = objs[i]
-        Ry = _rot_y(np.asarray(yaw[i]))
-        p = np.array([pos[i, 0], base[i], pos[i, 1]])
-        ids[slot] = i + 1
-        pr = o.prisms
-        used = pr[:, 12] >= 0
-        prisms[slot, :, 0:3] = p + pr[:, 0:3] @ Ry.T
-        prisms[slot, :, 3:6] = pr[:, 3:6]
-        prisms[slot, :, 6:15] = np.broadcast_to(Ry.T.reshape(9), (NB, 9))
-        prisms[slot, :, 15:21] = pr[:, 6:12]
-        prisms[slot, :, 21] = pr[:, 12]
-        prisms[slot, :, 22] = i + 1
-        prisms[slot, :, 23] = used
-        el = o.ellipsoids
-        used = el[:, 15] >= 0
-        theta = el[:, 16] * np.sin(o.gait * t + o.phase)
-        Rx = _rot_x(theta)  # (NE, 3, 3)
-        c_local = el[:, 6:9] + np.einsum("nij,nj->ni", Rx, el[:, 0:3] - el[:, 6:9])
-        Rw = np.einsum("ij,njk->nik", Ry, Rx)
-        ells[slot, :, 0:3] = p + c_local @ Ry.T
-        ells[slot, :, 3:6] = np.where(used[:, None], el[:, 3:6], 1.0)
-        ells[slot, :, 6:15] = np.transpose(Rw, (0, 2, 1)).reshape(NE, 9)
-        ells[slot, :, 15:21] = el[:, 9:15]
-        ells[slot, :, 21] = el[:, 15]
-        ells[slot, :, 22] = i + 1
-        ells[slot, :, 23] = used
+    m = len(sel)
+    if m == 0:
+        return prisms.reshape(k * NB, F).astype(np.float32), ells.reshape(k * NE, F).astype(np.float32), ids
+    Ry = _rot_y(yaw[sel])  # (m, 3, 3)
+    p = np.stack([pos[sel, 0], base[sel], pos[sel, 1]], axis=1)  # (m, 3)
+    ids[:m] = sel + 1
+    pr = tab.prisms[sel]
+    prisms[:m, :, 0:3] = p[:, None, :] + np.einsum("mij,mnj->mni", Ry, pr[:, :, 0:3])
+    prisms[:m, :, 3:6] = pr[:, :, 3:6]
+    prisms[:m, :, 6:15] = np.transpose(Ry, (0, 2, 1)).reshape(m, 1, 9)
+    prisms[:m, :, 15:21] = pr[:, :, 6:12]
+    prisms[:m, :, 21] = pr[:, :, 12]
+    prisms[:m, :, 22] = (sel + 1)[:, None]
+    prisms[:m, :, 23] = pr[:, :, 12] >= 0
+    el = tab.ellipsoids[sel]
+    used = el[:, :, 15] >= 0
+    theta = el[:, :, 16] * np.sin(tab.gait[sel] * t + tab.phase[sel])[:, None]
+    Rx = _rot_x(theta)  # (m, NE, 3, 3)
+    c_local = el[:, :, 6:9] + np.einsum("mnij,mnj->mni", Rx, el[:, :, 0:3] - el[:, :, 6:9])
+    Rw = np.einsum("mij,mnjk->mnik", Ry, Rx)
+    ells[:m, :, 0:3] = p[:, None, :] + np.einsum("mij,mnj->mni", Ry, c_local)
+    ells[:m, :, 3:6] = np.where(used[..., None], el[:, :, 3:6], 1.0)
+    ells[:m, :, 6:15] = np.transpose(Rw, (0, 1, 3, 2)).reshape(m, NE, 9)
+    ells[:m, :, 15:21] = el[:, :, 9:15]
+    ells[:m, :, 21] = el[:, :, 15]
+    ells[:m, :, 22] = (sel + 1)[:, None]
+    ells[:m, :, 23] = used
     return prisms.reshape(k * NB, F).astype(np.float32), ells.reshape(k * NE, F).astype(np.float32), ids

@@ -129,8 +129,8 @@ def sidewalk_color(x, z, cx, cz, layout, fw, salt, noise):
 def wall_color(a, h, key, bh, fwa, fwh, salt, noise):
     """Façade colour at along-wall coordinate ``a`` and height ``h`` (metres) of the block ``key``."""
     seg = jnp.floor(a / 9.0)
-    la = a - seg * 9.0
-    seg_i = seg.astype(jnp.int32)
+    la = shared(a - seg * 9.0)
+    seg_i = shared(seg.astype(jnp.int32))
     r = rand_bytes(key, seg_i, salt + 100) + rand_bytes(key, seg_i, salt + 101)
     brick = r[1] < 0.35
     base = cwhere(brick, palette(jnp.floor(r[0] * 4).astype(jnp.int32), _BRICKS),
@@ -156,10 +156,10 @@ def wall_color(a, h, key, bh, fwa, fwh, salt, noise):
     # window grid: n windows per house, evenly spaced
     nwin = jnp.floor(8.3 / (2.2 + 1.0 * r[3]))
     wsp = 8.3 / nwin
-    fa = jnp.mod(la - 0.35, wsp) - 0.5 * wsp
+    fa = shared(jnp.mod(la - 0.35, wsp) - 0.5 * wsp)
     wcol = jnp.floor((la - 0.35) / wsp)
-    fl = jnp.floor((h - gfh) / fh)
-    fy = h - gfh - fl * fh
+    fl = shared(jnp.floor((h - gfh) / fh))
+    fy = shared(h - gfh - fl * fh)
     ww = wsp * (0.38 + 0.22 * r[4])
     wh = 1.3 + 0.4 * r[5]
     top_ok = gfh + fl * fh + 0.8 + wh < bh - 0.8
@@ -234,6 +234,7 @@ def static_color(p, d, hit, layout, fx, salt):
         for m, sc in scales.items():
             inv = jnp.where(kind == m, 1.0 / sc[k], inv)
         noise.append(value_noise(su * inv, sv * inv, salt + 11 + k))
+    a, h, key, fwa, fw_y, x, z, fw_ground = (shared(v) for v in (a, h, key, fwa, fw_y, x, z, fw_ground))
     road = road_color(x, z, layout, fw_ground, noise)
     walk = sidewalk_color(x, z, hit["s_cx"], hit["s_cz"], layout, fw_ground, salt, noise)
     wall = wall_color(a, h, key, hit["s_bh"], fwa, fw_y, salt, noise)

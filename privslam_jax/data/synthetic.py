@@ -241,6 +241,7 @@ class SyntheticSequence:
                                         float(config.object_density))
         self.instance_classes: dict[int, int] = {i + 1: o.class_id for i, o in enumerate(self.objects)}
         self._classes = np.array([o.class_id for o in self.objects], np.int32)
+        self._table = so.ObjectTable(self.objects)
         fx = config.fx_ratio * config.width
         self.camera = Camera(fx=fx, fy=fx, cx=(config.width - 1) / 2.0, cy=(config.height - 1) / 2.0,
                              width=config.width, height=config.height,
@@ -287,12 +288,12 @@ class SyntheticSequence:
         cfg = self.config
         t = float(self.timestamps[i])
         s_cam = self._s0 + cfg.speed * t
-        pos, yaw, base = so.object_poses(self.objects, self.path, t, float(s_cam), float(cfg.speed))
+        pos, yaw, base = so.object_poses(self._table, self.path, t, float(s_cam))
         cam = self._cams[i]
         tan_half = float((cfg.width / 2 + 2) / self._intr[0])
         sel = so.select_visible(pos, base, self._classes, cam[[0, 2]], float(cam[3]), tan_half, 250.0, cfg.max_objects,
                                 float(cfg.baseline) if cfg.stereo else 0.0)
-        prisms, ells, ids = so.frame_primitives(self.objects, sel, pos, yaw, base, t, cfg.max_objects)
+        prisms, ells, ids = so.frame_primitives(self._table, sel, pos, yaw, base, t, cfg.max_objects)
         return {"cams": self._cams_of(i), "intr": self._intr, "prisms": prisms, "ells": ells, "slot_ids": ids,
                 "salt": self._salt}
 
