@@ -34,7 +34,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "slam",
         help="run ORB-SLAM-style SLAM (mono / stereo / RGB-D) on a KITTI-layout sequence",
-        description=__doc__.split("\n\n")[0],
+        description="Run SLAM on a KITTI-layout sequence folder (…/sequences/<id>); writes trajectory.txt (TUM, "
+                    "every frame), keyframes.txt, map.ply, metrics.json and two plots into --out.",
     )
     p.add_argument("sequence", help="KITTI-layout sequence folder …/sequences/<id>")
     p.add_argument("--mode", choices=("mono", "stereo", "rgbd"), default="mono", help="input mode (default mono)")
