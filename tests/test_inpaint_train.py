@@ -38,6 +38,8 @@ def test_resume_after_kill_equals_uninterrupted(tmp_path):
     assert any(not np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, fresh, strict=True))
     assert sorted(p.name for p in (tmp_path / "full" / "samples").iterdir()) == ["step_0000002.png", "step_0000004.png"]
     log = (tmp_path / "full" / "log.csv").read_text().splitlines()
+    killed_log = (tmp_path / "killed" / "log.csv").read_text().splitlines()
+    assert [r.split(",")[:2] for r in killed_log] == [r.split(",")[:2] for r in log]  # no duplicate rows
     assert len(log) == 5 and log[4].startswith("4,joint,") and "i_l1=" in log[4] and "e_fm=" in log[4]
     # the trained generators plug into the crop-based filter
     inp = full.inpainter()

@@ -325,6 +325,9 @@ def train(
         trainer.load_state_dict(restored)
     end = config.total_steps if max_steps is None else min(max_steps, config.total_steps)
     log_path = workdir / "log.csv"
+    if log_path.is_file():  # drop rows logged after the checkpoint we resume from
+        rows = log_path.read_text().splitlines(keepends=True)
+        log_path.write_text("".join(r for r in rows[:1] + [r for r in rows[1:] if int(r.split(",", 1)[0]) <= start]))
     bar = tqdm(range(start, end), initial=start, total=config.total_steps, disable=not progress, desc="inpaint")
     for step in bar:
         stage = config.stage_at(step)
