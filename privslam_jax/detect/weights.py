@@ -140,7 +140,14 @@ class RestrictedUnpickler(pickle.Unpickler):
 
     def find_class(self, module: str, name: str) -> object:
         if (module, name) in _ALLOWED:
-            return _ALLOWED[(module, name)]
+            target = _ALLOWED[(module, name)]
+            # Fresh objects per lookup: a pickle BUILD opcode on a returned global (e.g. setting
+            # attributes of a function) then cannot alter this module's state for later loads.
+            if isinstance(target, _StorageType):
+                return _StorageType(target.name)
+            if callable(target) and not isinstance(target, type):
+                return lambda *args, **kwargs: target(*args, **kwargs)
+            return target
         if module.startswith(STUB_MODULE_PREFIXES) and name.isidentifier() and not name.startswith("_"):
             qual = f"{module}.{name}"
             if qual not in self._stubs:
