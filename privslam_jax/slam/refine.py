@@ -236,18 +236,47 @@ def _obs_cost(
     mask: Bool[Array, " N"],
     inv_sigma2: Float[Array, " N"],
     delta: Float[Array, " N"],
-    config: RefineConfig,
+    params: "_RefineParams",
 ) -> tuple[Float[Array, " N"], Float[Array, " N"], Bool[Array, " N"]]:
-    """Per-observation cost contribution, whitened χ² and in-front flag."""
-    front = p_c[:, 2] > config.min_depth
+    """Per-observation cost contribution, whitened χ² and in-front flag (``δ = +inf``: squared loss)."""
+    front = p_c[:, 2] > params.min_depth
     s = inv_sigma2 * jnp.sum(e * e, axis=1)
-    rho = huber_rho(s, delta) if config.robust else s
-    behind = huber_rho(jnp.full_like(s, config.behind_chi2), delta) if config.robust else jnp.full_like(s, config.behind_chi2)
-    c = jnp.where(front, rho, behind)
+    c = jnp.where(front, huber_rho(s, delta), huber_rho(jnp.full_like(s, params.behind_chi2), delta))
     return jnp.where(mask, c, 0.0), s, front
 
 
-@partial(jax.jit, static_argnames=("config",))
+class _RefineParams(struct.PyTreeNode):
+    """Numeric :class:`RefineConfig` fields as traced values (changing them does not recompile)."""
+
+    max_iterations: Array
+    huber_mono: Array
+    huber_stereo: Array
+    chi2_mono: Array
+    chi2_stereo: Array
+    initial_damping: Array
+    function_tolerance: Array
+    step_tolerance: Array
+    min_depth: Array
+    behind_chi2: Array
+
+    @staticmethod
+    def of(config: RefineConfig, dtype: jnp.dtype) -> "_RefineParams":
+        f = lambda v: jnp.asarray(v, dtype)  # noqa: E731
+        inf = jnp.inf
+        return _RefineParams(
+            max_iterations=jnp.asarray(config.max_iterations, jnp.int32),
+            huber_mono=f(config.huber_mono if config.robust else inf),
+            huber_stereo=f(config.huber_stereo if config.robust else inf),
+            chi2_mono=f(config.chi2_mono),
+            chi2_stereo=f(config.chi2_stereo),
+            initial_damping=f(config.initial_damping),
+            function_tolerance=f(config.function_tolerance),
+            step_tolerance=f(config.step_tolerance),
+            min_depth=f(config.min_depth),
+            behind_chi2=f(config.behind_chi2),
+        )
+
+
 def refine_pose_padded(
     T_c_w: jaxlie.SE3,
     points_w: Float[Array, "N 3"],
@@ -258,12 +287,29 @@ def refine_pose_padded(
     intrinsics: Float[Array, " 5"],
     config: RefineConfig,
 ) -> RefineResult:
-    """Jitted core of :func:`refine_pose` on already padded arrays (no host checks, differentiable).
+    """Core of :func:`refine_pose` on already padded arrays (no host checks; jit-able, differentiable).
 
     ``intrinsics = (fx, fy, cx, cy, baseline)`` from :func:`camera_params` (a plain array, so that
     the camera is a traced value).  ``u_right`` entries ``< 0`` mark monocular observations
     (ORB-SLAM's convention); pass ``None`` for a purely monocular problem (2-row residuals, cheaper).
+    Only ``config.rounds``, the shapes and ``u_right is None`` select the compiled program.
     """
+    params = _RefineParams.of(config, points_w.dtype)
+    return _refine_jit(T_c_w, points_w, uv, valid, inv_sigma2, u_right, intrinsics, params, config.rounds)
+
+
+@partial(jax.jit, static_argnames=("rounds",))
+def _refine_jit(
+    T_c_w: jaxlie.SE3,
+    points_w: Float[Array, "N 3"],
+    uv: Float[Array, "N 2"],
+    valid: Bool[Array, " N"],
+    inv_sigma2: Float[Array, " N"],
+    u_right: Float[Array, " N"] | None,
+    intrinsics: Float[Array, " 5"],
+    config: _RefineParams,
+    rounds: int,
+) -> RefineResult:
     dtype = points_w.dtype
     intrinsics = intrinsics.astype(dtype)
     T_c_w = jax.tree.map(lambda a: jnp.asarray(a, dtype), T_c_w)
@@ -292,7 +338,7 @@ def refine_pose_padded(
         else:
             J, _ = jax.vmap(stereo_jacobians, in_axes=(0, None, None, None, None))(p_c, R, fx, fy, bf)
             J = J.at[:, 2].multiply(stereo.astype(dtype)[:, None])
-        w = _huber_weight(s, delta) if config.robust else jnp.ones_like(s)
+        w = _huber_weight(s, delta)
         w = jnp.where(mask & front, w * inv_sigma2, 0.0)
         H = jnp.einsum("n,nki,nkj->ij", w, J, J)
         g = jnp.einsum("n,nki,nk->i", w, J, e)
@@ -350,7 +396,7 @@ def refine_pose_padded(
         return (T, classify(T), iters + it, cost), None
 
     carry0 = (T_c_w, valid, jnp.asarray(0), initial_cost)
-    (T_f, inl, iters, cost_f), _ = jax.lax.scan(round_step, carry0, None, length=config.rounds)
+    (T_f, inl, iters, cost_f), _ = jax.lax.scan(round_step, carry0, None, length=rounds)
     return RefineResult(T_c_w=T_f, cost=cost_f, initial_cost=initial_cost, inliers=inl, iterations=iters)
 
 
