@@ -186,3 +186,24 @@ def test_route_turns_and_object_classes():
     assert set(s.instance_classes.values()) == {0, 1, 2, 3, 5, 7}
     empty = make_sequence(SynthConfig(num_frames=5, object_density=0.0))
     assert empty.instance_classes == {}
+
+
+def test_moving_objects_move():
+    """Walkers advance by their speed, oncoming cars by 8 m/s along the route, parked objects stay put."""
+    from privslam_jax.data import _synth_objects as so
+
+    s = make_sequence(SynthConfig(num_frames=100, seed=0))
+    tab = s._table
+    p0, y0, _ = so.object_poses(tab, s.path, 0.0, 3.0)
+    p1, y1, _ = so.object_poses(tab, s.path, 1.0, 3.0 + s.config.speed)
+    step = np.linalg.norm(p1 - p0, axis=1)
+    walk, static, oncoming = tab.motion == 1, tab.motion == 0, tab.motion == 2
+    assert walk.any() and static.any() and oncoming.any()
+    np.testing.assert_allclose(step[walk], np.linalg.norm(tab.vel[walk], axis=1), rtol=1e-9)
+    np.testing.assert_array_equal(step[static], 0.0)
+    assert np.all((step[oncoming] > 6.0) & (step[oncoming] <= 8.0 + 1e-9))  # chords of arcs are shorter
+    # walkers swing their limbs: their ellipsoid tables change between frames beyond the translation
+    i = int(np.nonzero(walk)[0][0])
+    _, e0, _ = so.frame_primitives(tab, np.array([i]), p0, y0, tab.base, 0.0, 1)
+    _, e1, _ = so.frame_primitives(tab, np.array([i]), p0, y0, tab.base, 0.3, 1)
+    assert np.abs(e0[:, 6:15] - e1[:, 6:15]).max() > 0.05

@@ -63,8 +63,8 @@ def lighting(col, normal, view, dist):
     """Sun + sky ambient shading and distance fog."""
     diff = jnp.maximum(_dot(normal, _SUN), 0.0)
     sky = 0.5 - 0.5 * normal[1]
-    shade = 0.42 + 0.55 * diff + 0.18 * sky
-    fog = 1.0 - jnp.exp(-dist / 320.0)
+    shade = shared(0.42 + 0.55 * diff + 0.18 * sky)
+    fog = shared(1.0 - jnp.exp(-dist / 320.0))
     return mix(cscale(col, shade), rgb(*HORIZON), fog)
 
 
