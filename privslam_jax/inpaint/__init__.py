@@ -52,7 +52,6 @@ __all__ = [
     "CropBank",
     "CropBox",
     "FolderData",
-    "evaluate_frames",
     "Inpainter",
     "InpainterConfig",
     "InpaintTrainer",
@@ -96,4 +95,4 @@ __all__ = [
 
 # ``train`` itself stays in privslam_jax.inpaint.train (a same-named attribute would shadow the module)
 from privslam_jax.inpaint.train import InpaintTrainer, TrainConfig, prepare_batch  # noqa: E402
-from privslam_jax.inpaint.evaluate import evaluate_frames  # noqa: E402
+# evaluate.py is run as ``python -m privslam_jax.inpaint.evaluate``; importing it here would make runpy warn.
