@@ -136,3 +136,18 @@ def test_state_dict_shape_mismatch_is_clear(yolov8n):
 
     with pytest.raises(ValueError, match=r"model\.22\.cv3\.0\..*: shape .* does not match"):
         load_state_dict(model, sd)
+
+
+def test_build_opcode_cannot_mutate_allowed_globals(tmp_path):
+    from privslam_jax.detect import weights
+
+    # GLOBAL torch._utils._rebuild_parameter; BUILD (None, {"__defaults__": (1,)}) -> setattr on the global
+    payload = (b"\x80\x02ctorch._utils\n_rebuild_parameter\n" + b"N}X\x0c\x00\x00\x00__defaults__K\x01\x85s\x86b.")
+    ckpt = tmp_path / "build.pt"
+    _zip_with_pickle(ckpt, payload)
+    read_torch_checkpoint(ckpt)  # mutates only a throwaway wrapper
+    assert weights._rebuild_parameter.__defaults__ is None
+    payload = b"\x80\x02ctorch\nHalfStorage\nN}X\x05\x00\x00\x00dtypeX\x01\x00\x00\x00Os\x86b."
+    _zip_with_pickle(ckpt, payload)
+    read_torch_checkpoint(ckpt)
+    assert weights._ALLOWED[("torch", "HalfStorage")].dtype == np.float16
