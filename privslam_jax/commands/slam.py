@@ -8,7 +8,8 @@ ground truth is read from ``…/poses/<id>.txt`` when present.  Writes into DIR:
 * ``keyframes.txt`` — TUM poses of the keyframes;
 * ``map.ply`` — map points with their keyframe-observation counts;
 * ``metrics.json`` — ``frames``, ``tracked``, ``lost_frames``, ``fps`` (all stages),
-  ``tracking_fps`` (median per-frame tracking time, without mapping), per-stage median times,
+  ``tracking_fps`` (1 / median per-frame time of extraction + tracking, without local mapping),
+  per-stage median times,
   events, and with ground truth ``ate_rmse_se3``, ``ate_rmse_sim3``, ``rpe_trans``, ``rpe_rot``
   (evo semantics, :mod:`privslam_jax.metrics.trajectory`) and ``path_length``;
 * ``trajectory_xz.png`` (estimate aligned to the ground truth, top view) and
@@ -89,7 +90,9 @@ def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | No
     write_tum_matrices(out / "trajectory.txt", ts, T)
     write_tum_matrices(out / "keyframes.txt", ts[result.keyframe_indices], result.keyframe_poses)
     save_point_cloud(out / "map.ply", result.map)
-    track = result.timings.get("track", np.full(n, np.nan))
+    total = result.timings.get("total", np.full(n, np.nan))
+    mapping = np.nan_to_num(result.timings.get("mapping", np.zeros(n)))
+    track = total - mapping  # per frame: extraction + stereo/depth + tracking, without local mapping
     metrics: dict = {
         "mode": mode,
         "frames": int(n),
