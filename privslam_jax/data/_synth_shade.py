@@ -196,8 +196,8 @@ def wall_color(a, h, key, bh, fwa, fwh, salt, noise):
     return mix(col, doorcol, door)
 
 
-def static_color(p, d, hit, layout, fx, salt):
-    """Planar colour of the static world at hit points ``p`` for rays ``d`` (``hit``: dict from trace)."""
+def static_fields(p, d, hit, layout, fx, salt):
+    """Channel-independent fields of the static world at hit points ``p`` (``hit``: dict from trace)."""
     kind = hit["s_kind"]
     t = hit["t_static"]
     dist = t * _norm(d)
@@ -211,17 +211,12 @@ def static_color(p, d, hit, layout, fx, salt):
     vertical = (kind >= 2) & side
     normal = (jnp.where(vertical & xface, nx, zero), jnp.where(vertical, zero, -1.0),
               jnp.where(vertical & ~xface, nz, zero))
-    fw_x = shared(footprint(dist, fx, view, normal, 0))
-    fw_y = shared(footprint(dist, fx, view, normal, 1))
-    fw_z = shared(footprint(dist, fx, view, normal, 2))
-    dist = shared(dist)
-    view = tuple(shared(v) for v in view)
-    fw_ground = jnp.maximum(fw_x, fw_z)
+    fw_x = footprint(dist, fx, view, normal, 0)
+    fw_y = footprint(dist, fx, view, normal, 1)
+    fw_z = footprint(dist, fx, view, normal, 2)
     a = jnp.where(xface, z, x)
-    fwa = jnp.where(xface, fw_z, fw_x)
     h = -y
     face = jnp.where(xface, 0, 2) + (jnp.where(xface, nx, nz) > 0)
-    key = (hit["s_cx"].astype(jnp.int32) * 4 + face) * 7919 + hit["s_cz"].astype(jnp.int32)
     # four value-noise fields shared by all materials, on each material's surface coordinates
     ccx, ccz, up = cloud_coords(d)
     sky = kind == 0
@@ -234,18 +229,33 @@ def static_color(p, d, hit, layout, fx, salt):
         for m, sc in scales.items():
             inv = jnp.where(kind == m, 1.0 / sc[k], inv)
         noise.append(value_noise(su * inv, sv * inv, salt + 11 + k))
-    a, h, key, fwa, fw_y, x, z, fw_ground = (shared(v) for v in (a, h, key, fwa, fw_y, x, z, fw_ground))
-    road = road_color(x, z, layout, fw_ground, noise)
-    walk = sidewalk_color(x, z, hit["s_cx"], hit["s_cz"], layout, fw_ground, salt, noise)
-    wall = wall_color(a, h, key, hit["s_bh"], fwa, fw_y, salt, noise)
-    kerb = grey(0.66 * (1.0 - 0.4 * grid_lines(a, 1.0, 0.01, fwa)), (1.0, 0.98, 0.95))
+    return {
+        "kind": kind, "side": side, "vertical": vertical, "normal": normal, "view": view, "dist": dist,
+        "x": x, "z": z, "a": a, "h": h, "up": up, "noise": noise,
+        "fw_ground": jnp.maximum(fw_x, fw_z), "fwa": jnp.where(xface, fw_z, fw_x), "fw_y": fw_y,
+        "key": (hit["s_cx"].astype(jnp.int32) * 4 + face) * 7919 + hit["s_cz"].astype(jnp.int32),
+        "cx": hit["s_cx"], "cz": hit["s_cz"], "bh": hit["s_bh"],
+    }
+
+
+def static_wall(f, salt):
+    """One channel of the façade colour (run in its own channel loop, see ``synthetic._view``)."""
+    return wall_color(f["a"], f["h"], f["key"], f["bh"], f["fwa"], f["fw_y"], salt, f["noise"])
+
+
+def static_color(f, layout, salt, wall):
+    """One channel of the static world's colour from :func:`static_fields` and the façade channel ``wall``."""
+    kind, side, vertical = f["kind"], f["side"], f["vertical"]
+    road = road_color(f["x"], f["z"], layout, f["fw_ground"], f["noise"])
+    walk = sidewalk_color(f["x"], f["z"], f["cx"], f["cz"], layout, f["fw_ground"], salt, f["noise"])
+    kerb = grey(0.66 * (1.0 - 0.4 * grid_lines(f["a"], 1.0, 0.01, f["fwa"])), (1.0, 0.98, 0.95))
     col = cwhere(kind == 1, road, walk)
     col = cwhere((kind == 2) & side, kerb, col)
     col = cwhere(kind == 3, cwhere(side, wall, rgb(0.32, 0.30, 0.30)), col)
     # fake ambient occlusion at the foot of walls
-    ao = jnp.where(vertical & (kind == 3), 0.72 + 0.28 * jnp.clip((h - 0.15) / 1.5, 0.0, 1.0), 1.0)
-    lit = lighting(cscale(col, ao), normal, view, dist)
-    return cwhere(sky, sky_color(up, noise), lit)
+    ao = jnp.where(vertical & (kind == 3), 0.72 + 0.28 * jnp.clip((f["h"] - 0.15) / 1.5, 0.0, 1.0), 1.0)
+    lit = lighting(cscale(col, ao), f["normal"], f["view"], f["dist"])
+    return cwhere(kind == 0, sky_color(f["up"], f["noise"]), lit)
 
 
 def _plate(u, v, inst):
