@@ -11,3 +11,8 @@ from privslam_jax.slam.refine import (
     refine_pose,
     refine_pose_padded,
 )
+from privslam_jax.slam.frontend import Features, OrbConfig, extract_orb, match_descriptors, search_by_projection
+from privslam_jax.slam.initializer import InitConfig
+from privslam_jax.slam.mapping import Map, MappingConfig
+from privslam_jax.slam.system import MODES, Slam, SlamConfig, SlamResult, run_slam
+from privslam_jax.slam.tracking import TrackingConfig
