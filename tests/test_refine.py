@@ -65,7 +65,7 @@ def _scipy_solve(T0, p_w, obs, inv_sigma2, delta, stereo):
         lambda x: np.asarray(fun(jnp.asarray(x))),
         np.zeros(6),
         jac=lambda x: np.asarray(jac(jnp.asarray(x))),
-        ftol=1e-15, xtol=1e-15, gtol=1e-15, max_nfev=200, **kw,
+        ftol=1e-15, xtol=1e-15, gtol=1e-15, max_nfev=500, **kw,
     )
     return sol.cost, jaxlie.SE3.exp(jnp.asarray(sol.x)) @ T0
 
