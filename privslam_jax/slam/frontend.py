@@ -298,10 +298,8 @@ def search_by_projection(
 
 
 def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarray, ur: np.ndarray,
-                half: int = 5, span: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sub-pixel right ``u`` by SAD over ``(2·half+1)²`` patches at offsets ``±span`` + parabola.
-
-    Returns ``(u_right, ok, best SAD)``."""
+                half: int = 5, span: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel right ``u`` by SAD over ``(2·half+1)²`` patches at offsets ``±span`` + parabola."""
     h, w = left.shape
     n = ul.size
     off = np.arange(-half, half + 1)
@@ -309,9 +307,8 @@ def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarr
     ok = (vi - half >= 0) & (vi + half < h) & (ui - half >= 0) & (ui + half < w)
     ok &= (uri - half - span >= 0) & (uri + half + span < w)
     out = ur.astype(np.float64).copy()
-    best_sad = np.full(n, np.inf)
     if not ok.any():
-        return out, ok, best_sad
+        return out, ok
     idx = np.flatnonzero(ok)
     L = left.astype(np.float32)
     R = right.astype(np.float32)
@@ -333,8 +330,7 @@ def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarr
     out[idx] = uri[idx] + shifts[b] + np.where(inner, delta, 0.0)
     good = np.zeros(n, bool)
     good[idx] = inner
-    best_sad[idx] = sad[np.arange(idx.size), b]
-    return out, good, best_sad
+    return out, good
 
 
 def stereo_depths(
@@ -346,7 +342,7 @@ def stereo_depths(
     Candidates: right keypoints within ±2·scale^octave rows, octave ±1, ``u_r ∈ (u_l − fx, u_l]``;
     the best Hamming distance must be ≤ (TH_HIGH+TH_LOW)/2; then an 11×11 SAD search over ±5 px
     with a parabola fit gives sub-pixel ``u_r`` (matches whose SAD minimum lies on the search
-    border, or whose SAD exceeds 1.5·1.4·median SAD as in ORB-SLAM, are dropped).  Departure: SAD on level 0, not on the keypoint's pyramid level.
+    border are dropped).  Departure: SAD on level 0, not on the keypoint's pyramid level.
     """
     n = len(fl)
     depth = np.full(n, np.nan)
@@ -373,11 +369,9 @@ def stereo_depths(
     first = np.r_[True, qi[1:] != qi[:-1]]
     sel = first & (d <= (TH_HIGH + TH_LOW) // 2)
     q, k = qi[sel], ki[sel]
-    ur, good, sad = _sad_refine(left, right, fl.uv[q, 0], fl.uv[q, 1], fr.uv[k, 0])
+    ur, good = _sad_refine(left, right, fl.uv[q, 0], fl.uv[q, 1], fr.uv[k, 0])
     disp = fl.uv[q, 0] - ur
     good &= disp > 0.5
-    if good.any():  # ORB-SLAM: drop matches whose SAD exceeds 1.5·1.4·median (robust outlier gate)
-        good &= sad <= 2.1 * np.median(sad[good])
     if good.sum() == 0:
         return depth
     depth[q[good]] = fx * baseline / disp[good]
