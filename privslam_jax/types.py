@@ -34,13 +34,13 @@ class Camera:
     ``P1[0, 3] = -fx·baseline``).
     """
 
-    fx: float
+    fx: float | Array
     """Focal length along ``u``, pixels."""
-    fy: float
+    fy: float | Array
     """Focal length along ``v``, pixels."""
-    cx: float
+    cx: float | Array
     """Principal point ``u``, pixels."""
-    cy: float
+    cy: float | Array
     """Principal point ``v``, pixels."""
     width: int = struct.field(pytree_node=False, default=0)
     """Image width in pixels (static)."""

@@ -15,9 +15,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     d = PipelineConfig()
     p = subparsers.add_parser(
         "run",
-        help="run the privacy-preserving SLAM pipeline on the embedded synthetic default",
-        description="Render the embedded synthetic street sequence and run the pipeline stages on it; "
-        "writes everything under DIR and prints a summary (also in DIR/report.json).",
+        help="the main job: render the embedded synthetic street sequence and summarise it",
+        description="Render the embedded synthetic street sequence (stereo, KITTI layout) under DIR and print "
+        "its summary (also in DIR/report.json). Later pipeline stages join as they are wired in "
+        "(see privslam_jax/pipeline.py).",
     )
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder")
     p.add_argument("--frames", type=int, default=d.frames, help=f"number of frames (default {d.frames})")
