@@ -108,11 +108,15 @@ def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | No
     if gt is not None:
         from privslam_jax.metrics.trajectory import rpe, trajectory_metrics
 
-        m = trajectory_metrics((ts, T), (ts, gt[:n]))
-        metrics.update({k: float(v) for k, v in m.items()})
-        rt, _ = rpe((ts, T), (ts, gt[:n]), align="sim3")
-        metrics["rpe_trans_sim3"] = float(rt.rmse)
         metrics["path_length"] = float(np.linalg.norm(np.diff(gt[:n, :3, 3], axis=0), axis=1).sum())
+        try:
+            m = trajectory_metrics((ts, T), (ts, gt[:n]))
+            metrics.update({k: float(v) for k, v in m.items()})
+            rt, _ = rpe((ts, T), (ts, gt[:n]), align="sim3")
+            metrics["rpe_trans_sim3"] = float(rt.rmse)
+        except ValueError as err:  # e.g. a straight ground-truth path: Umeyama is ill-posed; keep the outputs
+            metrics["alignment_error"] = str(err)
+            print(f"privslam slam: no ATE/RPE: {err}", file=sys.stderr)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     if plots:
         _plots(out, T, ts, gt[:n] if gt is not None else None, result.tracked, mode)
@@ -126,7 +130,10 @@ def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, trac
     import matplotlib.pyplot as plt
 
     sim3 = mode == "mono"
-    est = _aligned(T, gt, sim3) if gt is not None and len(T) >= 3 else T
+    try:
+        est = _aligned(T, gt, sim3) if gt is not None and len(T) >= 3 else T
+    except ValueError:  # degenerate alignment (straight path): plot the estimate as it is
+        est = T
     fig, ax = plt.subplots(figsize=(6, 6))
     if gt is not None:
         ax.plot(gt[:, 0, 3], gt[:, 2, 3], "k-", lw=2, label="ground truth")

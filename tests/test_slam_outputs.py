@@ -1,0 +1,38 @@
+"""``privslam slam`` outputs: a straight ground-truth path (ill-posed alignment) loses nothing."""
+
+import json
+from types import SimpleNamespace
+
+import jax.numpy as jnp
+import numpy as np
+
+from privslam_jax import PointCloud, Trajectory
+from privslam_jax.commands.slam import write_outputs
+from privslam_jax.data.trajectory_io import read_tum_matrices
+
+
+def test_straight_ground_truth_keeps_trajectory_map_and_reports_why(tmp_path, capsys):
+    n = 6
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 2, 3] = np.arange(n) * 1.0  # straight drive along z: positions collinear
+    est = gt.copy()
+    est[:, 2, 3] *= 0.5
+    result = SimpleNamespace(
+        trajectory=Trajectory.from_matrices(np.arange(n) * 0.1, est),
+        keyframe_indices=np.array([0, 3]),
+        keyframe_poses=est[[0, 3]],
+        map=PointCloud(xyz=jnp.ones((4, 3)), observations=jnp.full((4,), 2)),
+        timings={"total": np.full(n, 0.05)},
+        tracked=np.ones(n, bool),
+        events=[],
+    )
+    metrics = write_outputs(tmp_path, result, np.arange(n) * 0.1, gt, "mono", wall_time=1.0, plots=True)
+    assert "collinear" in metrics["alignment_error"]
+    assert "ate_rmse_sim3" not in metrics
+    assert metrics["path_length"] == 5.0
+    assert json.loads((tmp_path / "metrics.json").read_text())["frames"] == n
+    ts, T = read_tum_matrices(tmp_path / "trajectory.txt")
+    np.testing.assert_allclose(T[:, :3, 3], est[:, :3, 3], atol=1e-6)
+    for name in ("keyframes.txt", "map.ply", "trajectory_xz.png", "ate_over_time.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert "no ATE/RPE" in capsys.readouterr().err
