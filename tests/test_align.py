@@ -78,6 +78,33 @@ def test_bad_input():
         umeyama_np(x, y[:-1])
     with pytest.raises(ValueError, match="at least 3"):
         umeyama_np(x[:2], y[:2])
-    line = np.outer(np.arange(10.0), [1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="degenerate"):
-        umeyama_np(line, line + 1.0)
+        umeyama_np(np.ones((5, 3)), y[:5])
+
+
+def test_collinear_residuals_do_not_depend_on_the_free_rotation():
+    """A straight drive (rank-1 covariance): the residuals are those of the closed-form 1-D fit."""
+    rng = np.random.default_rng(3)
+    s = np.arange(12.0)
+    line = np.outer(s, [0.0, 0.0, 1.0])  # ground truth along z
+    est = np.outer(0.5 * s, [1.0, 0.0, 0.0]) + rng.normal(scale=0.05, size=(12, 3))  # half scale, along x, noisy
+    R, t, c = umeyama_np(est, line, with_scale=True)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    res = np.linalg.norm(c * est @ R.T + t - line, axis=1)
+    # Any rotation about the z axis after the alignment leaves every residual unchanged.
+    a = 0.7
+    Rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    mu = line.mean(0)
+    res_rot = np.linalg.norm((c * est @ R.T + t - mu) @ Rz.T + mu - line, axis=1)
+    np.testing.assert_allclose(res_rot, res, atol=1e-12)
+    # and the total is the optimum: no rotation of the family nor a scipy search finds lower.
+    from scipy.optimize import minimize
+    from scipy.spatial.transform import Rotation
+
+    def cost(p):
+        Rp = Rotation.from_rotvec(p[:3]).as_matrix()
+        return np.sum((p[3] * est @ Rp.T + p[4:] - line) ** 2)
+
+    x0 = np.concatenate([Rotation.from_matrix(R).as_rotvec(), [c], t])
+    best = min(minimize(cost, x0 + rng.normal(scale=0.3, size=7), method="BFGS").fun for _ in range(5))
+    assert np.sum(res**2) <= best + 1e-8

@@ -16,9 +16,14 @@ minimising :math:`\frac1n\sum_i \lVert y_i - (c R x_i + t)\rVert^2`:
 
 The maths is written once over an array namespace: :func:`umeyama` is the jitted JAX version
 (JAX default precision, differentiable where the SVD is), :func:`umeyama_np` the float64 numpy
-version used by the trajectory metrics (where agreement with evo to 1e-6 needs float64) and which
-rejects degenerate inputs (second singular value below 1e-12 of the first; evo tests
-against machine epsilon in absolute terms, which rounding noise of collinear points can pass).
+version used by the trajectory metrics (where agreement with evo to 1e-6 needs float64).
+
+Collinear point sets (a straight drive: rank-1 covariance) are accepted, unlike evo, which raises.
+The rotation about the line is then not determined, but every optimal :math:`R` of the family
+(the SVD one among them) gives the same residuals :math:`\lVert y_i - (cRx_i + t)\rVert`: rotating
+about the line through :math:`\mu_y` moves no point that lies on it, and for points off it keeps
+their distance to it.  So ATE and the scale :math:`c` are well defined; only the aligned
+orientations are arbitrary about the line.  Identical points (rank 0) are rejected.
 """
 
 from __future__ import annotations
@@ -69,8 +74,8 @@ def umeyama_np(
 ) -> tuple[Float[np.ndarray, "3 3"], Float[np.ndarray, " 3"], float]:
     """Float64 numpy Umeyama alignment ``dst ≈ c·R·src + t``; returns ``(R, t, c)``.
 
-    Raises ``ValueError`` for mismatched shapes, fewer than 3 points (2 for SE(3) would leave
-    the rotation about the line free) or a degenerate (rank < 2) covariance.
+    Raises ``ValueError`` for mismatched shapes, fewer than 3 points or a zero covariance (all
+    points identical).  Collinear points are accepted (see the module docstring).
     """
     x = np.asarray(src, dtype=np.float64)
     y = np.asarray(dst, dtype=np.float64)
@@ -81,8 +86,8 @@ def umeyama_np(
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         raise ValueError("umeyama: NaN or inf in the points")
     R, t, c, d = _umeyama(np, x, y, with_scale)
-    if not d[1] > 1e-12 * max(d[0], np.finfo(np.float64).tiny):
-        raise ValueError("umeyama: degenerate point sets (covariance rank < 2, e.g. all points collinear)")
+    if not d[0] > 0.0:
+        raise ValueError("umeyama: degenerate point sets (zero covariance, e.g. all points identical)")
     return R, t, float(c)
 
 
