@@ -3,13 +3,20 @@
 Problem.  Cameras ``T_c,w`` (world-to-camera, ``M`` of them, some fixed for the gauge) and points
 ``X_p`` (``P``), observations ``o = (c, p, z_o)`` with information ``Ω_o = σ_o⁻² I``:
 
-    F = ½ Σ_o ρ(s_o),   s_o = Ω_o ‖π_c(T_c X_p) − z_o‖²,
+    F = ½ Σ_o ρ_o(s_o),   s_o = Ω_o ‖π_c(T_c X_p) − z_o‖²,
 
 with the Huber ``ρ`` of :mod:`privslam_jax.slam.refine` (``config.huber_delta = None``: squared loss).
 
+Stereo / RGB-D observations (ORB-SLAM ``EdgeStereoSE3ProjectXYZ``).  An observation may carry the
+right-image ``u_r`` of a rectified pair (RGB-D: a virtual one, ``u_r = u − bf/z_depth``); then
+``z_o = (u, v, u_r)`` and ``π(p) = (f_x x/z + c_x, f_y y/z + c_y, f_x x/z + c_x − bf/z)`` with
+``bf = f_x·baseline``, Huber threshold ``√7.815`` and χ² threshold 7.815 (3 dof) instead of
+``√5.991``/5.991.  Pass ``obs_u_right`` with ``u_r < 0`` marking monocular observations (whose third
+row is zero); without it the program has 2-row residuals (cheaper, e.g. the BAL benchmark).
+
 Normal equations.  Cameras are updated on the left, ``T_c ← exp(ξ_c) T_c`` (jaxlie tangent
 ``(ρ, ω)``), points additively.  With the IRLS weights ``w_o = ρ'(s_o) Ω_o`` and the analytic
-Jacobians ``A_o = ∂r_o/∂ξ_c`` (2×6), ``B_o = ∂r_o/∂X_p`` (2×3)
+Jacobians ``A_o = ∂r_o/∂ξ_c`` (2×6 / 3×6), ``B_o = ∂r_o/∂X_p`` (2×3 / 3×3)
 (:func:`privslam_jax.geometry.projection.reprojection_jacobians`):
 
     [ U   W ] [ξ]   [−g_c]     U = blockdiag_c Σ_{o∈c} w A_oᵀA_o  (6×6 blocks)
@@ -65,9 +72,14 @@ class BAConfig:
     max_iterations: int = 50
     """Maximum LM iterations (accepted or rejected)."""
     huber_delta: float | None = math.sqrt(5.991)
-    """Huber threshold δ on the whitened error (ORB-SLAM local BA: √5.991); ``None`` = squared loss."""
+    """Huber threshold δ on the whitened error (ORB-SLAM local BA: √5.991); ``None`` = squared loss
+    (for the stereo observations too)."""
     chi2: float = 5.991
     """χ² threshold (2 dof, 95 %) for the returned inlier mask."""
+    huber_delta_stereo: float = math.sqrt(7.815)
+    """Huber threshold δ of stereo observations (3 rows; ORB-SLAM: √7.815)."""
+    chi2_stereo: float = 7.815
+    """χ² threshold (3 dof, 95 %) of stereo observations for the inlier mask."""
     initial_damping: float = 1e-4
     """Initial λ (Ceres' default initial trust-region radius 1e4 ⇒ 1e-4)."""
     function_tolerance: float = 1e-6
@@ -191,18 +203,24 @@ def _sym3_inverse(A: Float[Array, "P 3 3"]) -> Float[Array, "P 3 3"]:
 
 
 def _project(
-    R: Float[Array, "O 3 3"], t: Float[Array, "O 3"], X: Float[Array, "O 3"], K: Float[Array, "O 5"]
-) -> tuple[Float[Array, "O 3"], Float[Array, "O 2"]]:
+    R: Float[Array, "O 3 3"], t: Float[Array, "O 3"], X: Float[Array, "O 3"], K: Float[Array, "O 5"],
+    stereo: bool = False,
+) -> tuple[Float[Array, "O 3"], Float[Array, "O K"]]:
+    """Camera-frame points and their projections ``(u, v)``, or ``(u, v, u_r)`` when ``stereo``."""
     p_c = jnp.sum(R * X[:, None, :], axis=2) + t
     inv_z = 1.0 / p_c[:, 2]
-    uv = jnp.stack([K[:, 0] * p_c[:, 0] * inv_z + K[:, 2], K[:, 1] * p_c[:, 1] * inv_z + K[:, 3]], axis=1)
-    return p_c, uv
+    u = K[:, 0] * p_c[:, 0] * inv_z + K[:, 2]
+    rows = [u, K[:, 1] * p_c[:, 1] * inv_z + K[:, 3]]
+    if stereo:
+        rows.append(u - K[:, 0] * K[:, 4] * inv_z)
+    return p_c, jnp.stack(rows, axis=1)
 
 
 def _jacobians(
-    p_c: Float[Array, "O 3"], R: Float[Array, "O 3 3"], K: Float[Array, "O 5"]
-) -> tuple[Float[Array, "O 2 6"], Float[Array, "O 2 3"]]:
-    """Elementwise (vectorisable) form of :func:`~privslam_jax.geometry.projection.reprojection_jacobians`."""
+    p_c: Float[Array, "O 3"], R: Float[Array, "O 3 3"], K: Float[Array, "O 5"], stereo: bool = False
+) -> tuple[Float[Array, "O K 6"], Float[Array, "O K 3"]]:
+    """Elementwise (vectorisable) form of :func:`~privslam_jax.geometry.projection.reprojection_jacobians`
+    (``stereo``: of :func:`~privslam_jax.geometry.projection.stereo_jacobians`, third row ``∂u_r``)."""
     x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
     iz = 1.0 / z
     fx, fy = K[:, 0], K[:, 1]
@@ -210,12 +228,13 @@ def _jacobians(
     # d(u,v)/d p_c
     Pu = jnp.stack([fx * iz, zero, -fx * x * iz * iz], -1)  # (O, 3)
     Pv = jnp.stack([zero, fy * iz, -fy * y * iz * iz], -1)
-    Jp = jnp.stack([jnp.sum(Pu[:, :, None] * R, 1), jnp.sum(Pv[:, :, None] * R, 1)], 1)  # (O, 2, 3)
+    P = [Pu, Pv]
+    if stereo:  # u_r = u − bf/z  ⇒  ∂u_r/∂p_c = ∂u/∂p_c + (0, 0, bf/z²)
+        P.append(Pu + jnp.stack([zero, zero, fx * K[:, 4] * iz * iz], -1))
+    Jp = jnp.stack([jnp.sum(Pr[:, :, None] * R, 1) for Pr in P], 1)  # (O, K, 3)
 
     # d p_c / d(ρ, ω) = [I, −[p_c]×] and rowᵀ(−[p]×) = (p × row)ᵀ
-    Jc = jnp.stack(
-        [jnp.concatenate([Pu, jnp.cross(p_c, Pu)], -1), jnp.concatenate([Pv, jnp.cross(p_c, Pv)], -1)], 1
-    )
+    Jc = jnp.stack([jnp.concatenate([Pr, jnp.cross(p_c, Pr)], -1) for Pr in P], 1)
     return Jc, Jp
 
 
@@ -235,7 +254,10 @@ class _Obs(struct.PyTreeNode):
 
     cam: Array  # (O,) int32
     pt: Array  # (O,) int32
-    uv: Array  # (O, 2)
+    uv: Array  # (O, K) observed (u, v) or (u, v, u_r); u_r = 0 on monocular rows
+    stereo: Array | None  # (O,) 1.0 on stereo rows, 0.0 on monocular ones; None: no stereo rows at all
+    delta: Array  # (O,) Huber threshold of each observation (+inf: squared loss)
+    chi2: Array  # (O,) χ² inlier threshold of each observation
     isg: Array  # (O,) information, 0 for padded rows
     K: Array  # (O, 5) intrinsics of the observing camera
     valid: Array  # (O,) bool
@@ -245,22 +267,27 @@ class _Obs(struct.PyTreeNode):
 def _residuals(obs: _Obs, T: jaxlie.SE3, X: Array, config: _Params):
     Rm = T.rotation().as_matrix()[obs.cam]
     t = T.translation()[obs.cam]
-    p_c, uv = _project(Rm, t, X[obs.pt], obs.K)
+    p_c, uv = _project(Rm, t, X[obs.pt], obs.K, stereo=obs.stereo is not None)
     e = uv - obs.uv
+    if obs.stereo is not None:
+        e = e.at[:, 2].multiply(obs.stereo)
     s = obs.isg * jnp.sum(e * e, axis=1)
     front = p_c[:, 2] > config.min_depth
-    delta = config.huber_delta  # +inf for the squared loss
-    rho, behind = huber_rho(s, delta), huber_rho(config.behind_chi2, delta)
+    delta = obs.delta  # +inf for the squared loss
+    rho, behind = huber_rho(s, delta), huber_rho(jnp.full_like(s, config.behind_chi2), delta)
     c = jnp.where(obs.valid, jnp.where(front, rho, behind), 0.0)
     return Rm, p_c, e, s, front, 0.5 * jnp.sum(c)
 
 
 def _linearise(obs: _Obs, T: jaxlie.SE3, X: Array, n_cams: int, config: _Params) -> _Lin:
     Rm, p_c, e, s, front, cost = _residuals(obs, T, X, config)
-    delta = config.huber_delta
+    delta = obs.delta
     w = obs.isg * jnp.where(s <= delta * delta, 1.0, delta / jnp.sqrt(jnp.maximum(s, delta * delta)))
     w = jnp.where(front, w, 0.0)
-    Jc, Jp = _jacobians(p_c, Rm, obs.K)
+    Jc, Jp = _jacobians(p_c, Rm, obs.K, stereo=obs.stereo is not None)
+    if obs.stereo is not None:
+        Jc = Jc.at[:, 2].multiply(obs.stereo[:, None])
+        Jp = Jp.at[:, 2].multiply(obs.stereo[:, None])
     Jc = Jc * obs.free[:, None, None]
     wJc = Jc * w[:, None, None]
     wJp = Jp * w[:, None, None]
@@ -331,6 +358,8 @@ class _Params(struct.PyTreeNode):
     max_iterations: Array
     huber_delta: Array
     chi2: Array
+    huber_delta_stereo: Array
+    chi2_stereo: Array
     initial_damping: Array
     function_tolerance: Array
     parameter_tolerance: Array
@@ -345,6 +374,8 @@ class _Params(struct.PyTreeNode):
             max_iterations=jnp.asarray(config.max_iterations, jnp.int32),
             huber_delta=f(jnp.inf if config.huber_delta is None else config.huber_delta),
             chi2=f(config.chi2),
+            huber_delta_stereo=f(jnp.inf if config.huber_delta is None else config.huber_delta_stereo),
+            chi2_stereo=f(config.chi2_stereo),
             initial_damping=f(config.initial_damping),
             function_tolerance=f(config.function_tolerance),
             parameter_tolerance=f(config.parameter_tolerance),
@@ -366,16 +397,19 @@ def bundle_adjust_padded(
     intrinsics: Float[Array, "M 5"],
     structure: BAStructure,
     config: BAConfig,
+    obs_u_right: Float[Array, " O"] | None = None,
 ) -> BAResult:
     """Core of :func:`bundle_adjust` on padded arrays and a precomputed :class:`BAStructure` (jit-friendly).
 
-    Only ``config.chunk`` and the array shapes select the compiled program; the other settings are
-    passed as traced values, so changing them does not recompile.
+    ``obs_u_right``: right-image ``u`` of stereo observations, ``< 0`` on monocular ones (``None``:
+    all monocular, 2-row residuals).  Only ``config.chunk``, the array shapes and ``obs_u_right is
+    None`` select the compiled program; the other settings are passed as traced values, so changing
+    them does not recompile.
     """
     params = _Params.of(config, points.dtype)
     return _bundle_adjust_jit(
         T_c_w, points, obs_cam, obs_pt, obs_uv, obs_valid, obs_inv_sigma2, fixed_cams, intrinsics, structure,
-        params, config.chunk,
+        params, obs_u_right, config.chunk,
     )
 
 
@@ -392,14 +426,29 @@ def _bundle_adjust_jit(
     intrinsics: Float[Array, "M 5"],
     structure: BAStructure,
     config: _Params,
+    obs_u_right: Float[Array, " O"] | None,
     chunk: int,
 ) -> BAResult:
     dtype = points.dtype
     M = fixed_cams.shape[0]
+    n_obs = obs_cam.shape[0]
+    if obs_u_right is None:
+        stereo, uv_obs = None, obs_uv.astype(dtype)
+        delta = jnp.full((n_obs,), config.huber_delta, dtype)
+        chi2 = jnp.full((n_obs,), config.chi2, dtype)
+    else:
+        is_st = obs_u_right >= 0
+        stereo = is_st.astype(dtype)
+        uv_obs = jnp.concatenate([obs_uv.astype(dtype), jnp.where(is_st, obs_u_right, 0.0).astype(dtype)[:, None]], 1)
+        delta = jnp.where(is_st, config.huber_delta_stereo, config.huber_delta).astype(dtype)
+        chi2 = jnp.where(is_st, config.chi2_stereo, config.chi2).astype(dtype)
     obs = _Obs(
         cam=obs_cam,
         pt=obs_pt,
-        uv=obs_uv.astype(dtype),
+        uv=uv_obs,
+        stereo=stereo,
+        delta=delta,
+        chi2=chi2,
         isg=jnp.where(obs_valid, obs_inv_sigma2.astype(dtype), 0.0),
         K=intrinsics.astype(dtype)[obs_cam],
         valid=obs_valid,
@@ -442,7 +491,7 @@ def _bundle_adjust_jit(
 
     T_f, X_f, lin_f, _, _, it_f, _ = jax.lax.while_loop(cond, body, init)
     _, _, _, s, front, _ = _residuals(obs, T_f, X_f, config)
-    inl = obs_valid & front & (s < config.chi2)
+    inl = obs_valid & front & (s < obs.chi2)
     return BAResult(T_c_w=T_f, points=X_f, cost=lin_f.cost, initial_cost=lin0.cost, inliers=inl, iterations=it_f)
 
 
@@ -469,6 +518,7 @@ def bundle_adjust(
     config: BAConfig = BAConfig(),
     *,
     obs_inv_sigma2: ArrayLike | None = None,
+    obs_u_right: ArrayLike | None = None,
     pad: bool = True,
 ) -> BAResult:
     """Bundle adjustment (host entry point): checks, pads to buckets, runs the jitted LM, unpads.
@@ -484,6 +534,8 @@ def bundle_adjust(
       camera: one :class:`Camera` for all, or ``(M, 4|5)`` per-camera ``(fx, fy, cx, cy[, baseline])``.
       config: solver settings.
       obs_inv_sigma2: ``(O,)`` information ``1/σ²`` per observation (default 1).
+      obs_u_right: ``(O,)`` right-image ``u`` of stereo (or RGB-D virtual-stereo) observations,
+        ``< 0`` for monocular ones; needs a positive baseline for the cameras that have stereo rows.
       pad: pad sizes to buckets (``False``: exact sizes, e.g. for one large problem).
 
     Returns the unpadded :class:`BAResult` (``M`` poses, ``P`` points, ``O`` inliers).
@@ -512,6 +564,9 @@ def bundle_adjust(
         raise ValueError("obs_cam and obs_pt must be integer arrays")
     isg = np.ones(n_o) if obs_inv_sigma2 is None else np.asarray(obs_inv_sigma2)
     _check("obs_inv_sigma2", isg, (n_o,))
+    ur = None if obs_u_right is None else np.asarray(obs_u_right)
+    if ur is not None:
+        _check("obs_u_right", ur, (n_o,))
     if isinstance(camera, Camera):
         b = 0.0 if camera.baseline is None else camera.baseline
         intr = np.tile(np.array([camera.fx, camera.fy, camera.cx, camera.cy, b], np.float64), (n_c, 1))
@@ -522,6 +577,10 @@ def bundle_adjust(
         if intr.shape[1] == 4:
             intr = np.concatenate([intr, np.zeros((n_c, 1))], 1)
     oc, op, uv, isg = oc[valid], op[valid], uv[valid], isg[valid]
+    if ur is not None:
+        ur = ur[valid]
+        if not np.all(np.isfinite(ur)):
+            raise ValueError("obs_u_right contains NaN/inf (mark monocular observations with a negative value)")
     if oc.size and (oc.min() < 0 or oc.max() >= n_c or op.min() < 0 or op.max() >= n_p):
         raise ValueError(f"observation indices out of range (cameras [0, {n_c}), points [0, {n_p}))")
     if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(uv)) and np.all(np.isfinite(wxyz))):
@@ -532,6 +591,8 @@ def bundle_adjust(
         raise ValueError("camera intrinsics contain NaN/inf")
     if not np.any(fixed):
         raise ValueError("fix at least one camera (gauge freedom)")
+    if ur is not None and oc.size and np.any((ur >= 0) & ~(intr[oc, 4] > 0)):
+        raise ValueError("stereo observations (obs_u_right >= 0) need a positive camera baseline")
 
     dtype = jnp.asarray(pts if np.issubdtype(pts.dtype, np.floating) else pts.astype(float)).dtype
     m_pad = ba_bucket(n_c) if pad else n_c
@@ -563,6 +624,7 @@ def bundle_adjust(
         jnp.asarray(intr_p, dtype),
         structure,
         config,
+        None if ur is None else jnp.asarray(padded(ur, o_pad, -1.0), dtype),
     )
     inl = np.zeros(n_o, bool)
     inl[valid] = np.asarray(res.inliers)[:n_v]

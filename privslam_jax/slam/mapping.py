@@ -19,7 +19,10 @@ Follows ORB-SLAM3's ``LocalMapping`` (Campos et al. 2021; Mur-Artal & Tardós 20
 * ``LocalBundleAdjustment``: the new keyframe and its most covisible neighbours (the window) are
   optimised with all points they see; the other keyframes that see those points are fixed.
   Observations with ``χ² > 5.991·σ²`` after BA are removed.
-  ``σ² = scale_factor^(2·octave)`` is the keypoint's pyramid variance.
+  ``σ² = scale_factor^(2·octave)`` is the keypoint's pyramid variance.  Keypoints with a depth
+  (stereo match, or RGB-D as a virtual stereo pair: ``u_r = u − f_x·b/z``) enter as 3-row stereo
+  observations ``(u, v, u_r)`` with the 3-dof thresholds (``χ² > 7.815·σ²``), as ORB-SLAM's
+  ``EdgeStereoSE3ProjectXYZ``; that ties the map's scale to the measured depths.
 """
 
 from __future__ import annotations
@@ -34,10 +37,13 @@ from privslam_jax.slam.frontend import TH_LOW, Features, match_descriptors, sear
 from privslam_jax.types import Camera, PointCloud
 
 __all__ = ["MappingConfig", "KeyFrame", "Map", "triangulate_new_points", "fuse_into_neighbours",
-           "cull_points", "local_bundle_adjustment", "solve_local_ba", "project", "camera_center"]
+           "cull_points", "local_bundle_adjustment", "solve_local_ba", "project", "camera_center",
+           "stereo_u_right"]
 
 CHI2_MONO = 5.991
 """95 % χ² quantile, 2 DOF."""
+CHI2_STEREO = 7.815
+"""95 % χ² quantile, 3 DOF."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -404,17 +410,24 @@ def cull_points(m: Map, kf: KeyFrame, cfg: MappingConfig) -> int:
 def solve_local_ba(
     T_c_w: np.ndarray, points: np.ndarray, obs_cam: np.ndarray, obs_pt: np.ndarray, obs_uv: np.ndarray,
     obs_sigma2: np.ndarray, fixed: np.ndarray, camera: Camera, iterations: int,
+    obs_u_right: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Local BA adapter: ``(K,4,4)`` poses and ``(P,3)`` points in, optimised ones out.
 
-    Huber-robust (δ² = 5.991) reprojection error weighted by ``1/σ²``.
+    Huber-robust (δ² = 5.991; stereo rows ``obs_u_right ≥ 0``: 7.815) reprojection error weighted
+    by ``1/σ²``.
     """
     n_real_cams, n_real_pts, n_real_obs = len(T_c_w), len(points), len(obs_cam)
+    n_obs_in = len(obs_cam)
     T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed = _pad_ba_problem(
         T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera)
+    ur = None
+    if obs_u_right is not None:
+        ur = np.full(len(obs_cam), -1.0, np.float32)
+        ur[:n_obs_in] = obs_u_right
     res = bundle_adjust(_se3_from_matrices(T_c_w), points.astype(np.float32), obs_cam, obs_pt,
                         obs_uv.astype(np.float32), None, fixed, camera, BAConfig(max_iterations=iterations),
-                        obs_inv_sigma2=(1.0 / obs_sigma2).astype(np.float32))
+                        obs_inv_sigma2=(1.0 / obs_sigma2).astype(np.float32), obs_u_right=ur)
     T = _matrices_from_se3(np.asarray(res.T_c_w.wxyz_xyz, np.float64))[:n_real_cams]
     X = np.asarray(res.points, np.float64)[:n_real_pts]
     T_in, X_in = T_c_w[:n_real_cams], points[:n_real_pts]
@@ -422,6 +435,17 @@ def solve_local_ba(
         return T_in, X_in
     T[fixed[:n_real_cams]] = T_in[fixed[:n_real_cams]]
     return T, X
+
+
+def stereo_u_right(u: np.ndarray, depth: np.ndarray, camera: Camera) -> np.ndarray | None:
+    """Right-image ``u_r = u − f_x·b/z`` of keypoints with a depth, ``−1`` elsewhere (ORB-SLAM's
+    convention for monocular observations); ``None`` when no keypoint has a depth or the camera
+    has no baseline."""
+    ok = np.isfinite(depth) & (depth > 0)
+    if not ok.any() or not camera.baseline:
+        return None
+    ur = u - camera.fx * float(camera.baseline) / np.where(ok, depth, 1.0)
+    return np.where(ok & (ur >= 0), ur, -1.0)
 
 
 def _se3_from_matrices(T: np.ndarray) -> "jaxlie.SE3":
@@ -539,16 +563,21 @@ def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_mi
     okp = m._obs_kp.v[rows]
     uv = np.empty((len(rows), 2))
     oct_ = np.empty(len(rows), np.int64)
+    depth = np.full(len(rows), np.nan)
     for k in np.unique(okf):
         s = okf == k
-        uv[s] = m.keyframes[k].feats.uv[okp[s]]
-        oct_[s] = m.keyframes[k].feats.octave[okp[s]]
+        f = m.keyframes[k].feats
+        uv[s] = f.uv[okp[s]]
+        oct_[s] = f.octave[okp[s]]
+        if f.depth is not None:
+            depth[s] = f.depth[okp[s]]
     s2 = m.sigma2(oct_)
+    ur = stereo_u_right(uv[:, 0], depth, m.camera)
     poses = np.stack([m.keyframes[c].T_c_w for c in cams])
     fixed = np.zeros(len(cams), bool)
     fixed[len(local):] = True
     new_poses, new_pts = solve_local_ba(poses, m.xyz[pids], cam_index[okf], pt_index[opt], uv, s2, fixed,
-                                        m.camera, cfg.ba_iterations)
+                                        m.camera, cfg.ba_iterations, obs_u_right=ur)
     for i, c in enumerate(local):
         m.keyframes[c].T_c_w = new_poses[i]
     good_pts = np.isfinite(new_pts).all(1)
@@ -560,7 +589,14 @@ def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_mi
         s = okf == k
         proj[s], z[s] = project(m.keyframes[k].T_c_w, m.xyz[opt[s]], m.camera)
     err = ((proj - uv) ** 2).sum(1) / s2
-    out = (err > CHI2_MONO) | (z <= 0)
+    chi2 = np.full(len(rows), CHI2_MONO)
+    if ur is not None:
+        st = ur >= 0
+        bf = m.camera.fx * float(m.camera.baseline)
+        err_r = (proj[:, 0] - bf / np.where(z > 0, z, 1.0) - ur) ** 2 / s2
+        err = np.where(st, err + err_r, err)
+        chi2 = np.where(st, CHI2_STEREO, CHI2_MONO)
+    out = (err > chi2) | (z <= 0)
     m.erase_observations(rows[out])
     # refresh viewing normals of the optimised points
     return {"ba_points": int(len(pids)), "ba_keyframes": len(local), "ba_fixed": len(fixed_list),

@@ -85,6 +85,13 @@ class SlamConfig:
     """RGB-D: close-point depth threshold, metres."""
     min_init_points: int = 300
     """Stereo/RGB-D: keypoints with depth needed to initialise."""
+    rgbd_baseline: float = 0.08
+    """RGB-D: baseline (m) of the virtual stereo pair ``u_r = u − f_x·b/z`` used in pose refinement and
+    local BA when the camera has none (ORB-SLAM: ``Camera.bf / f_x``; a camera baseline is used as is)."""
+    motion_check_ratio: float = 0.3
+    """When the motion model keeps fewer than this fraction of the last frame's inliers (e.g. the onset
+    of a turn, where the constant-velocity guess is off and repetitive texture gives a few wrong
+    matches), PnP against the reference keyframe is tried as well and the pose with more inliers kept."""
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -121,6 +128,8 @@ class Slam:
             raise ValueError("stereo mode needs camera.baseline")
         if camera.width <= 0 or camera.height <= 0:
             raise ValueError("camera.width and camera.height must be set")
+        if config.mode == "rgbd" and not camera.baseline:
+            camera = camera.replace(baseline=float(config.rgbd_baseline))
         self.camera = camera
         self.cfg = config
         self.map = Map(camera, config.orb.scale_factor, config.orb.n_levels)
@@ -324,6 +333,18 @@ class Slam:
                 radius = tcfg.motion_radius_depth if self.depth_mode else tcfg.motion_radius_mono
                 last.point_ids = np.where(m.bad[np.maximum(last.point_ids, 0)], -1, last.point_ids)
                 n = track_motion_model(frame, last, T_pred, m, radius * (1 if gap == 1 else 2), tcfg)
+                n_last = self.inliers[last.index] if last.index < len(self.inliers) else 0
+                if tcfg.min_motion_matches <= n < cfg.motion_check_ratio * n_last:
+                    # suspicious drop (turn onset): compare with PnP against the reference keyframe
+                    keep = (frame.T_c_w, frame.point_ids.copy())
+                    frame.point_ids[:] = -1
+                    n_pnp = track_keyframe_pnp(frame, [self._ref_kf.id], m, seed, tcfg)
+                    if n_pnp <= n:
+                        frame.T_c_w, frame.point_ids = keep
+                    else:
+                        self.events.append(f"frame {frame.index}: PnP ({n_pnp} inliers) replaced the "
+                                           f"motion model ({n} inliers)")
+                        n = n_pnp
             tim["motion"] = time.perf_counter() - t
             if n < tcfg.min_motion_matches and self._lost_since == 0:
                 t = time.perf_counter()

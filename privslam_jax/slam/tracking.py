@@ -25,7 +25,14 @@ import jaxlie
 import numpy as np
 
 from privslam_jax.slam.frontend import TH_HIGH, TH_LOW, Features, match_descriptors, search_by_projection
-from privslam_jax.slam.mapping import Map, _matrices_from_se3, _se3_from_matrices, camera_center, project
+from privslam_jax.slam.mapping import (
+    Map,
+    _matrices_from_se3,
+    _se3_from_matrices,
+    camera_center,
+    project,
+    stereo_u_right,
+)
 from privslam_jax.slam.refine import RefineConfig
 from privslam_jax.slam.refine import refine_pose as _jax_refine_pose
 from privslam_jax.types import Camera
@@ -137,9 +144,8 @@ def _optimise_frame(frame: Frame, m: Map, T0: np.ndarray) -> int:
     pid = frame.point_ids[idx]
     ur = None
     cam = m.camera
-    if frame.feats.depth is not None and cam.baseline:
-        z = frame.feats.depth[idx]
-        ur = np.where(np.isfinite(z) & (z > 0), frame.feats.uv[idx, 0] - cam.fx * cam.baseline / np.where(z > 0, z, 1.0), -1.0)
+    if frame.feats.depth is not None:
+        ur = stereo_u_right(frame.feats.uv[idx, 0], frame.feats.depth[idx], cam)
     T, inl = refine_pose(T0, m.xyz[pid], frame.feats.uv[idx], frame.feats.octave[idx], cam, m.scale_factor, ur)
     frame.T_c_w = T
     frame.point_ids[idx[~inl]] = -1
