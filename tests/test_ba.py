@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from privslam_jax.geometry.projection import reprojection_jacobians
+from privslam_jax.geometry.projection import reprojection_jacobians, stereo_jacobians
 from privslam_jax.slam.ba import (
     BAConfig,
     _bundle_adjust_jit,
@@ -24,6 +24,8 @@ from privslam_jax.slam.ba import (
 from privslam_jax.types import Camera
 
 CAM = Camera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+BASELINE = 0.5
+CAM_ST = Camera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480, baseline=BASELINE)
 TIGHT = dict(max_iterations=200, function_tolerance=1e-14, parameter_tolerance=1e-14)
 
 
@@ -37,14 +39,18 @@ def _se3_from_vec(v: np.ndarray) -> jaxlie.SE3:
     return jaxlie.SE3.exp(jnp.asarray(v))
 
 
-def _problem(n_cams: int = 4, n_pts: int = 30, seed: int = 0, n_out: int = 0):
-    """Cameras on a line looking along +z at a point cloud; perturbed start."""
+def _problem(n_cams: int = 4, n_pts: int = 30, seed: int = 0, n_out: int = 0, with_u_right: bool = False):
+    """Cameras on a line looking along +z at a point cloud; perturbed start.
+
+    ``with_u_right``: also return the right-image ``u`` (baseline ``BASELINE``, noisy) of every
+    other observation, ``−1`` (monocular) on the rest."""
     rng = np.random.default_rng(seed)
     X = np.stack([rng.uniform(-4, 4, n_pts), rng.uniform(-2, 2, n_pts), rng.uniform(6, 14, n_pts)], 1)
     true = np.zeros((n_cams, 6))
     true[:, 0] = -np.linspace(0, 2, n_cams)  # T_c_w translation: camera centres move along +x
     true[:, 4] = rng.normal(0, 0.02, n_cams)
-    cams, pts, uvs = [], [], []
+    rng_ur = np.random.default_rng(seed + 1000)  # own stream: the monocular problem stays unchanged
+    cams, pts, uvs, urs = [], [], [], []
     for c in range(n_cams):
         T = _se3_from_vec(true[c])
         M = np.asarray(T.as_matrix())
@@ -55,26 +61,38 @@ def _problem(n_cams: int = 4, n_pts: int = 30, seed: int = 0, n_out: int = 0):
         cams.append(np.full(seen.sum(), c))
         pts.append(np.flatnonzero(seen))
         uvs.append(uv[seen] + rng.normal(0, 0.5, (seen.sum(), 2)))
+        ur = uv[seen, 0] - CAM.fx * BASELINE / p_c[seen, 2] + rng_ur.normal(0, 0.5, seen.sum())
+        urs.append(np.where(np.arange(seen.sum()) % 2 == 0, ur, -1.0))
     obs_cam, obs_pt, obs_uv = np.concatenate(cams), np.concatenate(pts), np.concatenate(uvs)
+    obs_ur = np.concatenate(urs)
     obs_uv[:n_out] += rng.uniform(15, 40, (n_out, 2))
+    obs_ur[:n_out] = np.where(obs_ur[:n_out] >= 0, obs_ur[:n_out] + 30.0, -1.0)
     start = true + rng.normal(0, [0.02, 0.02, 0.02, 0.005, 0.005, 0.005], true.shape)
     start[0] = true[0]
     X0 = X + rng.normal(0, 0.05, X.shape)
     T0 = jaxlie.SE3(jnp.stack([_se3_from_vec(v).wxyz_xyz for v in start]))
-    return T0, X0, obs_cam.astype(np.int32), obs_pt.astype(np.int32), obs_uv
+    out = (T0, X0, obs_cam.astype(np.int32), obs_pt.astype(np.int32), obs_uv)
+    return out + (obs_ur,) if with_u_right else out
 
 
-def _scipy_ba(T0, X0, obs_cam, obs_pt, obs_uv, fixed, delta, isg=None, max_nfev=2000):
-    """Reference: scipy (MINPACK LM) over (tangent of free cameras, points), Jacobian by jax.jacfwd."""
+def _scipy_ba(T0, X0, obs_cam, obs_pt, obs_uv, fixed, delta, isg=None, max_nfev=2000, ur=None, delta_st=None):
+    """Reference: scipy (MINPACK LM) over (tangent of free cameras, points), Jacobian by jax.jacfwd.
+
+    ``ur``: right-image ``u`` per observation (``< 0`` monocular): stereo rows get the third residual
+    ``u − fx·b/z − u_r`` and the Huber threshold ``delta_st``."""
     n_c, n_p = T0.wxyz_xyz.shape[0], X0.shape[0]
     free = np.flatnonzero(~fixed)
     isg = np.ones(len(obs_cam)) if isg is None else isg
     T0m = np.asarray(T0.as_matrix())
+    ur = np.full(len(obs_cam), -1.0) if ur is None else np.asarray(ur)
+    st = jnp.asarray(ur >= 0)
+    dl = jnp.where(st, delta_st if delta_st is not None else jnp.inf, delta if delta is not None else jnp.inf)
 
-    def per_obs(xi_c, X, c, p, uv, w):
+    def per_obs(xi_c, X, c, p, uv, w, u_r, is_st):
         T = jaxlie.SE3.exp(xi_c) @ jaxlie.SE3.from_matrix(jnp.asarray(T0m)[c])
         q = T @ X[p]
-        e = jnp.stack([CAM.fx * q[0] / q[2] + CAM.cx, CAM.fy * q[1] / q[2] + CAM.cy]) - uv
+        u = CAM.fx * q[0] / q[2] + CAM.cx
+        e = jnp.stack([u - uv[0], CAM.fy * q[1] / q[2] + CAM.cy - uv[1], jnp.where(is_st, u - CAM.fx * BASELINE / q[2] - u_r, 0.0)])
         return e * jnp.sqrt(w)
 
     def unpack(x):
@@ -83,12 +101,13 @@ def _scipy_ba(T0, X0, obs_cam, obs_pt, obs_uv, fixed, delta, isg=None, max_nfev=
 
     def res(x):
         xi, X = unpack(x)
-        e = jax.vmap(per_obs, in_axes=(0, None, 0, 0, 0, 0))(xi[obs_cam], X, obs_cam, obs_pt, obs_uv, isg)
-        if delta is None:
+        e = jax.vmap(per_obs, in_axes=(0, None, 0, 0, 0, 0, 0, 0))(
+            xi[obs_cam], X, obs_cam, obs_pt, obs_uv, isg, jnp.asarray(ur), st)
+        if delta is None and delta_st is None:
             return e.reshape(-1)
         # Huber: the residual √ρ(s) with the squared loss has exactly the cost ½Σρ(s) (smooth for s > 0)
         s = jnp.sum(e * e, axis=1)
-        return jnp.sqrt(jnp.where(s <= delta**2, s, 2 * delta * jnp.sqrt(s) - delta**2))
+        return jnp.sqrt(jnp.where(s <= dl**2, s, 2 * dl * jnp.sqrt(s) - dl**2))
 
     f = jax.jit(res)
     jf = jax.jit(jax.jacfwd(res))
@@ -125,6 +144,66 @@ def test_huber_with_outliers_is_a_minimum_for_scipy_and_flags_them(x64):
     assert float(res.cost) == pytest.approx(ref, rel=1e-6)
     assert float(res.cost) < float(res.initial_cost)
     assert not np.asarray(res.inliers)[:6].any() and np.asarray(res.inliers)[6:].mean() > 0.9
+
+
+def test_stereo_squared_loss_matches_scipy(x64):
+    T0, X0, oc, op, uv, ur = _problem(n_pts=20, seed=4, with_u_right=True)
+    fixed = np.zeros(4, bool)
+    fixed[0] = True  # one fixed camera: the stereo rows fix the scale
+    isg = np.random.default_rng(5).uniform(0.5, 1.0, len(oc))
+    cfg = BAConfig(huber_delta=None, **TIGHT)
+    res = bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM_ST, cfg, obs_inv_sigma2=isg, obs_u_right=ur)
+    ref = _scipy_ba(T0, X0, oc, op, uv, fixed, None, isg, ur=ur)
+    assert float(res.cost) == pytest.approx(ref, rel=1e-6)
+    assert float(res.cost) < 0.2 * float(res.initial_cost)
+    # the stereo rows count: without them the optimum is different (lower: fewer residuals)
+    mono = bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM_ST, cfg, obs_inv_sigma2=isg)
+    assert float(mono.cost) < 0.9 * float(res.cost)
+
+
+def test_stereo_huber_with_outliers_matches_scipy_and_uses_3dof_threshold(x64):
+    T0, X0, oc, op, uv, ur = _problem(n_cams=5, n_pts=24, seed=6, n_out=6, with_u_right=True)
+    fixed = np.zeros(5, bool)
+    fixed[0] = True  # the only unperturbed camera; the stereo rows fix the scale
+    cfg = BAConfig(huber_delta=math.sqrt(5.991), huber_delta_stereo=math.sqrt(7.815), **TIGHT)
+    res = bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM_ST, cfg, obs_u_right=ur)
+    ref = _scipy_ba(res.T_c_w, np.asarray(res.points), oc, op, uv, fixed, math.sqrt(5.991), max_nfev=300,
+                    ur=ur, delta_st=math.sqrt(7.815))
+    assert float(res.cost) == pytest.approx(ref, rel=1e-6)
+    assert not np.asarray(res.inliers)[:6].any() and np.asarray(res.inliers)[6:].mean() > 0.9
+    # inlier mask: whitened χ² against 7.815 on stereo rows, 5.991 on monocular ones (numpy re-evaluation)
+    T = np.asarray(res.T_c_w.as_matrix())
+    X = np.asarray(res.points)
+    p_c = np.einsum("oij,oj->oi", T[oc, :3, :3], X[op]) + T[oc, :3, 3]
+    u = CAM.fx * p_c[:, 0] / p_c[:, 2] + CAM.cx
+    v = CAM.fy * p_c[:, 1] / p_c[:, 2] + CAM.cy
+    s = (u - uv[:, 0]) ** 2 + (v - uv[:, 1]) ** 2 + np.where(ur >= 0, (u - CAM.fx * BASELINE / p_c[:, 2] - ur) ** 2, 0)
+    np.testing.assert_array_equal(np.asarray(res.inliers), s < np.where(ur >= 0, 7.815, 5.991))
+
+
+def test_stereo_needs_a_baseline_and_finite_u_right():
+    T0, X0, oc, op, uv, ur = _problem(n_cams=3, n_pts=10, seed=3, with_u_right=True)
+    fixed = np.array([True, False, False])
+    with pytest.raises(ValueError, match="baseline"):
+        bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM, obs_u_right=ur)
+    bad = ur.copy()
+    bad[0] = np.nan
+    with pytest.raises(ValueError, match="obs_u_right"):
+        bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM_ST, obs_u_right=bad)
+    with pytest.raises(ValueError, match="obs_u_right must have shape"):
+        bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM_ST, obs_u_right=ur[:-1])
+
+
+def test_elementwise_stereo_jacobians_match_projection_module(x64):
+    rng = np.random.default_rng(1)
+    p_c = jnp.asarray(rng.normal(0, 1, (4, 3)) + [0, 0, 5])
+    R = jnp.stack([jaxlie.SO3.exp(jnp.asarray(rng.normal(0, 0.5, 3))).as_matrix() for _ in range(4)])
+    K = jnp.asarray(np.tile([500.0, 480.0, 320.0, 240.0, 0.3], (4, 1)))
+    Jc, Jp = _jacobians(p_c, R, K, stereo=True)
+    for i in range(4):
+        a, b = stereo_jacobians(p_c[i], R[i], 500.0, 480.0, 500.0 * 0.3)  # checked against finite differences
+        np.testing.assert_allclose(Jc[i], a, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(Jp[i], b, rtol=1e-12, atol=1e-9)
 
 
 def test_elementwise_jacobians_match_projection_module(x64):
@@ -168,6 +247,14 @@ def test_no_recompile_within_buckets():
         keep = (op < n_pts) & (np.arange(len(op)) >= n_drop)
         out = bundle_adjust(T0, X0[:n_pts], oc[keep], op[keep], uv[keep], None, fixed, CAM, cfg)
         assert out.points.shape == (n_pts, 3) and out.inliers.shape == (int(keep.sum()),)
+    assert _bundle_adjust_jit._cache_size() == before
+    # stereo: one more program, then none for other stereo problems in the same buckets
+    T0, X0, oc, op, uv, ur = _problem(n_cams=5, n_pts=50, seed=2, with_u_right=True)
+    bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM_ST, cfg, obs_u_right=ur)
+    before = _bundle_adjust_jit._cache_size()
+    keep = (op < 46) & (np.arange(len(op)) >= 5)
+    bundle_adjust(T0, X0[:46], oc[keep], op[keep], uv[keep], None, fixed, CAM_ST, cfg, obs_u_right=ur[keep])
+    bundle_adjust(T0, X0, oc, op, uv, None, fixed, CAM_ST, cfg, obs_u_right=np.full(len(oc), -1.0))
     assert _bundle_adjust_jit._cache_size() == before
     assert ba_bucket(5) == 8 and ba_bucket(49, minimum=8) == 64 and ba_bucket(3) == 4 and ba_bucket(64) == 64
 
