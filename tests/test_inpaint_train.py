@@ -55,3 +55,35 @@ def test_config_validation():
     assert CFG.stage_at(0) == "edge" and CFG.stage_at(1) == "inpaint" and CFG.stage_at(3) == "joint"
     with pytest.raises(ValueError, match="beyond"):
         CFG.stage_at(4)
+
+
+def test_edge_inpaint_stage_trains_only_g2_and_l1_only_skips_d2():
+    """Official MODEL 3 (G1 frozen) with λ_adv,2 = 0: only G2's weights move; its lr follows a cosine."""
+    from privslam_jax.inpaint.train import InpaintTrainer, prepare_batch
+
+    cfg = TrainConfig(width=4, num_residual_blocks=1, size=32, batch_size=2, stages=(("edge_inpaint", 4),),
+                      inpaint_adv_weight=0.0, inpaint_lr=1e-3, inpaint_beta1=0.5, inpaint_lr_final=1e-5)
+    tr = InpaintTrainer(cfg)
+    before = tr.state_dict()
+    logs, outs = tr.step("edge_inpaint", prepare_batch(*_data(0, 2)))
+    after = tr.state_dict()
+    assert set(logs) == {"i_g", "i_adv", "i_l1"} and logs["i_adv"] == 0.0 and "edges" in outs
+    for name in ("edge_g", "edge_d", "inpaint_d"):  # spectral u/v of G1 included: eval mode, no update
+        for x, y in zip(jax.tree.leaves(before[name]), jax.tree.leaves(after[name]), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    moved = [not np.array_equal(np.asarray(x), np.asarray(y))
+             for x, y in zip(jax.tree.leaves(before["inpaint_g"]), jax.tree.leaves(after["inpaint_g"]), strict=True)]
+    assert any(moved)
+    assert cfg.g2_steps == 4 and TrainConfig(stages=(("edge", 3), ("inpaint", 2), ("joint", 1))).g2_steps == 3
+    # cosine schedule: lr(t) = final + (init - final)·(1 + cos(π t / T)) / 2
+    from privslam_jax.inpaint.train import _adam
+
+    tx = _adam(1e-3, 0.5, 0.9, 1e-5, 4)
+    state = tx.init({"w": np.zeros(1, np.float32)})
+    lrs = []
+    for _ in range(5):
+        upd, state = tx.update({"w": np.ones(1, np.float32)}, state)
+        lrs.append(-float(upd["w"][0]))  # Adam's first normalised step of a constant gradient is ±lr
+    t = np.arange(5)
+    ref = 1e-5 + (1e-3 - 1e-5) * (1 + np.cos(np.pi * np.minimum(t, 4) / 4)) / 2
+    np.testing.assert_allclose(lrs, ref, rtol=1e-3)

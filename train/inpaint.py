@@ -30,6 +30,15 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 configure_xla()
 
 
+def _parse_seeds(text: str) -> list[int]:
+    """``"0-3,7"`` → ``[0, 1, 2, 3, 7]``."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, sep, hi = part.partition("-")
+        out += list(range(int(lo), int(hi) + 1)) if sep else [int(lo)]
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     src = p.add_mutually_exclusive_group(required=True)
@@ -38,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     src.add_argument("--folder", type=Path, help="folder of images (random masks)")
     src.add_argument("--bank", type=Path, help="a crop bank .npz saved by an earlier run")
     p.add_argument("--synth-seed", type=int, default=0)
+    p.add_argument("--synth-seeds", help="several worlds: comma list or range A-B (overrides --synth-seed); "
+                   "--synth-frames frames of each")
     p.add_argument("--frame-stride", type=int, default=1)
     p.add_argument("--workdir", type=Path, required=True)
     p.add_argument("--export", type=Path, help="write the trained Inpainter .npz here")
@@ -46,20 +57,41 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", type=int, default=64)
     p.add_argument("--batch", type=int, default=8)
     p.add_argument("--steps", default="2000,2000,1000", help="edge,inpaint,joint steps")
+    p.add_argument("--stages", help="explicit schedule, e.g. edge:1500,edge_inpaint:5000 (overrides --steps; "
+                   "edge_inpaint = official MODEL 3: G2 trained on the frozen edge model's output)")
     p.add_argument("--seed", type=int, default=0, help="model and data seed")
     p.add_argument("--checkpoint-every", type=int, default=500)
     p.add_argument("--sample-every", type=int, default=500)
     p.add_argument("--max-steps", type=int, default=None)
+    p.add_argument("--lr", type=float, default=1e-4, help="generator Adam lr (official 1e-4)")
+    p.add_argument("--inpaint-lr", type=float, default=None, help="G2's own lr (default: --lr)")
+    p.add_argument("--inpaint-beta1", type=float, default=None, help="G2's own Adam beta1 (default 0)")
+    p.add_argument("--inpaint-lr-final", type=float, default=None,
+                   help="cosine-decay G2's lr to this over its updates (default: constant)")
+    p.add_argument("--inpaint-adv-weight", type=float, default=0.1,
+                   help="adversarial weight of G2 (official 0.1; 0 = L1 only, D2 skipped)")
     a = p.parse_args(argv)
+
+    from tqdm import tqdm
 
     from privslam_jax.inpaint.data import CropBank, FolderData
     from privslam_jax.inpaint.train import TrainConfig, train
 
-    steps = [int(s) for s in a.steps.split(",")]
-    if len(steps) != 3:
-        p.error("--steps needs three comma-separated numbers: edge,inpaint,joint")
+    if a.stages:
+        try:
+            stages = tuple((n, int(k)) for n, k in (x.split(":") for x in a.stages.split(",")))
+        except ValueError:
+            p.error("--stages needs name:steps pairs, e.g. edge:1500,edge_inpaint:5000")
+    else:
+        steps = [int(s) for s in a.steps.split(",")]
+        if len(steps) != 3:
+            p.error("--steps needs three comma-separated numbers: edge,inpaint,joint")
+        stages = tuple(zip(("edge", "inpaint", "joint"), steps, strict=True))
     cfg = TrainConfig(width=a.width, num_residual_blocks=a.blocks, size=a.size, batch_size=a.batch,
-                      stages=tuple(zip(("edge", "inpaint", "joint"), steps, strict=True)), seed=a.seed,
+                      stages=stages, seed=a.seed,
+                      lr=a.lr, inpaint_lr=a.inpaint_lr, inpaint_beta1=a.inpaint_beta1,
+                      inpaint_lr_final=a.inpaint_lr_final,
+                      inpaint_adv_weight=a.inpaint_adv_weight,
                       checkpoint_every=a.checkpoint_every, sample_every=a.sample_every)
     a.workdir.mkdir(parents=True, exist_ok=True)
     bank_path = a.workdir / "crop_bank.npz"
@@ -75,8 +107,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             from privslam_jax.data.synthetic import SynthConfig
 
-            data = CropBank.from_synthetic(SynthConfig(num_frames=a.synth_frames, seed=a.synth_seed), a.size,
-                                           seed=a.seed, frame_stride=a.frame_stride)
+            seeds = _parse_seeds(a.synth_seeds) if a.synth_seeds else [a.synth_seed]
+            data = CropBank.concat([
+                CropBank.from_synthetic(SynthConfig(num_frames=a.synth_frames, seed=s), a.size, seed=a.seed,
+                                        frame_stride=a.frame_stride, progress=len(seeds) == 1)
+                for s in tqdm(seeds, desc="worlds", disable=len(seeds) == 1)], seed=a.seed)
         data.save(bank_path)
         print(f"{len(data)} object crops saved to {bank_path}")
     trainer = train(cfg, data, a.workdir, max_steps=a.max_steps)

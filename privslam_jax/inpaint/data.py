@@ -91,6 +91,13 @@ class CropBank:
             return cls(d["images"], d["holes"], seed)
 
     @classmethod
+    def concat(cls, banks: list[CropBank], seed: int = 0) -> CropBank:
+        """One bank holding the crops of several (e.g. one per synthetic world)."""
+        if not banks:
+            raise ValueError("concat needs at least one crop bank")
+        return cls(np.concatenate([b.images for b in banks]), np.concatenate([b.holes for b in banks]), seed)
+
+    @classmethod
     def from_frames(
         cls,
         frames,

@@ -11,8 +11,10 @@ Per step (official ``src/edge_connect.py`` / ``models.py`` flow):
   the same (pre-update) fake edges.
 * ``inpaint`` stage: G2 on the *ground-truth* edge map, G2 step (L1 / mean mask, adversarial
   × 0.1, optional perceptual × 0.1 and style × 250), then D2 step.
-* ``joint``: both, G2 fed G1's composited edges ``ê`` (gradient stopped at ê — the official joint
-  model also keeps the two optimisers separate).
+* ``edge_inpaint`` (official ``MODEL: 3``): G1 frozen, G2 (and D2) trained on G1's composited
+  edges ``ê`` — G2 learns on the edges it will see at inference, at about half a joint step's cost.
+* ``joint`` (official ``MODEL: 4``): both, G2 fed G1's composited edges ``ê`` (gradient stopped at
+  ê — the official joint model also keeps the two optimisers separate).
 
 Edge inputs are the leak-free ones of :func:`~privslam_jax.inpaint.masks.safe_canny`; the edge
 targets are the Canny edges of the full target image.
@@ -42,7 +44,7 @@ from privslam_jax.inpaint.masks import safe_canny, to_grey
 __all__ = ["DataFn", "InpaintTrainer", "TrainConfig", "prepare_batch", "train"]
 
 DataFn = Callable[[int, int], tuple[np.ndarray, np.ndarray]]
-STAGES = ("edge", "inpaint", "joint")
+STAGES = ("edge", "inpaint", "edge_inpaint", "joint")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +73,7 @@ class TrainConfig:
     batch_size: int = 8
     """Batch size (official 8)."""
     stages: tuple[tuple[str, int], ...] = (("edge", 2000), ("inpaint", 2000), ("joint", 1000))
-    """(stage, steps) in order; stages among "edge", "inpaint", "joint"."""
+    """(stage, steps) in order; stages among "edge", "inpaint", "edge_inpaint", "joint"."""
     lr: float = 1e-4
     """Generator Adam learning rate (paper and code)."""
     d2g_lr: float = 0.1
@@ -80,6 +82,13 @@ class TrainConfig:
     """Adam β1 (paper and code)."""
     beta2: float = 0.9
     """Adam β2 (paper and code)."""
+    inpaint_lr: float | None = None
+    """G2's own Adam lr (None: ``lr``); not in the paper — a PSNR-oriented L1 run may go faster."""
+    inpaint_beta1: float | None = None
+    """G2's own Adam β1 (None: ``beta1``)."""
+    inpaint_lr_final: float | None = None
+    """If set, G2's lr follows a cosine from its initial value down to this over all G2 updates
+    (None: constant, as the official code)."""
     edge_adv_weight: float = 1.0
     """λ_adv,1 for G1 (paper; code implicit 1)."""
     fm_weight: float = 10.0
@@ -87,7 +96,7 @@ class TrainConfig:
     l1_weight: float = 1.0
     """λ_ℓ1 for G2 (÷ mean mask, code)."""
     inpaint_adv_weight: float = 0.1
-    """λ_adv,2 for G2."""
+    """λ_adv,2 for G2 (0: G2 is trained on the L1 term alone and the D2 step is skipped)."""
     perceptual_weight: float = 0.1
     """λ_p (used only with a feature_fn)."""
     style_weight: float = 250.0
@@ -107,6 +116,11 @@ class TrainConfig:
                 raise ValueError(f"bad stage {(stage, steps)}; stages are {STAGES} with steps >= 0")
         if self.size % 4:
             raise ValueError(f"size must be a multiple of 4, got {self.size}")
+
+    @property
+    def g2_steps(self) -> int:
+        """Number of G2 updates in the schedule."""
+        return sum(s for st, s in self.stages if st != "edge")
 
     @property
     def total_steps(self) -> int:
@@ -142,9 +156,15 @@ def prepare_batch(images: np.ndarray, holes: np.ndarray, sigma: float = 2.0) -> 
 
 
 @functools.lru_cache(maxsize=None)
-def _adam(lr: float, b1: float, b2: float) -> optax.GradientTransformation:
-    """One optax object per setting: the optimiser is static in the jitted steps' cache key."""
-    return optax.adam(lr, b1=b1, b2=b2)
+def _adam(lr: float, b1: float, b2: float, lr_final: float | None = None, steps: int = 0
+          ) -> optax.GradientTransformation:
+    """One optax object per setting: the optimiser is static in the jitted steps' cache key.
+
+    With ``lr_final``: cosine decay from ``lr`` to ``lr_final`` over ``steps`` updates."""
+    if lr_final is None:
+        return optax.adam(lr, b1=b1, b2=b2)
+    sched = optax.cosine_decay_schedule(lr, max(steps, 1), alpha=lr_final / lr)
+    return optax.adam(sched, b1=b1, b2=b2)
 
 
 def _edge_inputs(b: dict[str, jax.Array]) -> jax.Array:
@@ -170,6 +190,11 @@ def _edge_g_step(c: TrainConfig, g, d, opt, b):
 
 
 @nnx.jit
+def _edge_forward(g, b):
+    return g(_edge_inputs(b))
+
+
+@nnx.jit
 def _edge_d_step(d, opt, b, fake):
     def loss_fn(d):
         _, rf = d(jnp.concatenate([b["grey"], b["edges_true"]], axis=-1))
@@ -187,8 +212,11 @@ def _inpaint_g_step(c: TrainConfig, feature_fn, g, d, opt, b, edges):
 
     def loss_fn(g, d):
         out = g(jnp.concatenate([y * (1 - m) + m, edges], axis=-1))
-        _, ff = d(out)
-        adv = L.generator_adversarial_loss(ff[-1])
+        if c.inpaint_adv_weight:
+            _, ff = d(out)
+            adv = L.generator_adversarial_loss(ff[-1])
+        else:  # L1-only G2: the discriminator is not evaluated at all
+            adv = jnp.zeros(())
         l1 = L.l1_hole_loss(out, y, m)
         loss = c.inpaint_adv_weight * adv + c.l1_weight * l1
         if feature_fn is not None:
@@ -226,10 +254,13 @@ class InpaintTrainer:
         self.inpaint_d = Discriminator(3, use_sigmoid=False, width=c.width, rngs=rngs)
         g_tx = _adam(c.lr, c.beta1, c.beta2)
         d_tx = _adam(c.lr * c.d2g_lr, c.beta1, c.beta2)
+        g2_tx = _adam(c.lr if c.inpaint_lr is None else c.inpaint_lr,
+                      c.beta1 if c.inpaint_beta1 is None else c.inpaint_beta1, c.beta2,
+                      c.inpaint_lr_final, c.g2_steps)
         self.opt = {
             "edge_g": nnx.Optimizer(self.edge_g, g_tx, wrt=nnx.Param),
             "edge_d": nnx.Optimizer(self.edge_d, d_tx, wrt=nnx.Param),
-            "inpaint_g": nnx.Optimizer(self.inpaint_g, g_tx, wrt=nnx.Param),
+            "inpaint_g": nnx.Optimizer(self.inpaint_g, g2_tx, wrt=nnx.Param),
             "inpaint_d": nnx.Optimizer(self.inpaint_d, d_tx, wrt=nnx.Param),
         }
         self.feature_fn = feature_fn
@@ -244,15 +275,20 @@ class InpaintTrainer:
             logs |= lg
             logs |= _edge_d_step(self.edge_d, self.opt["edge_d"], b, e)
             outs["edges"] = e
-        if stage in ("inpaint", "joint"):
-            if stage == "joint":
+        if stage == "edge_inpaint":  # G1 frozen (its spectral-norm vectors too: eval mode)
+            self.edge_g.eval()
+            outs["edges"] = _edge_forward(self.edge_g, b)
+            self.edge_g.train()
+        if stage in ("inpaint", "edge_inpaint", "joint"):
+            if stage in ("edge_inpaint", "joint"):
                 eh = b["edge_hole"]
                 edges = jax.lax.stop_gradient(outs["edges"]) * eh + b["edges_in"] * (1 - eh)
             else:
                 edges = b["edges_true"]
             out, lg = _inpaint_g_step(self.config, self.feature_fn, self.inpaint_g, self.inpaint_d, self.opt["inpaint_g"], b, edges)
             logs |= lg
-            logs |= _inpaint_d_step(self.inpaint_d, self.opt["inpaint_d"], b, out)
+            if self.config.inpaint_adv_weight:
+                logs |= _inpaint_d_step(self.inpaint_d, self.opt["inpaint_d"], b, out)
             outs["image"] = out * b["hole"] + b["rgb"] * (1 - b["hole"])
         return {k: float(v) for k, v in logs.items()}, outs
 
