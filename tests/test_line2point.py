@@ -10,7 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from privslam_jax.attacks.line2point import Line2PointConfig, get_peak, line2point, num_coarse_neighbours, select_smallest
+from privslam_jax.attacks.line2point import (
+    Line2PointConfig,
+    get_peak,
+    line2point,
+    num_coarse_neighbours,
+    select_smallest,
+    sort_values,
+)
 from privslam_jax.privacy.lift import fixed_key, random_lift
 from privslam_jax.types import LineCloud
 
@@ -30,6 +37,7 @@ def street_points(n: int, seed: int) -> np.ndarray:
 
 
 def test_matches_numpy_reference_n2000():
+    # rows run in blocks on one host thread per core (2 blocks on a 2-core machine): covered too
     pts = street_points(2000, 0)
     with jax.enable_x64(True):
         lines = random_lift(jnp.asarray(pts), fixed_key(1))
@@ -70,6 +78,18 @@ def test_select_smallest_is_stable_argsort():
     for k in (1, 37, 150):
         got = np.asarray(select_smallest(jnp.asarray(v), k))
         np.testing.assert_array_equal(np.sort(got), np.sort(np.argsort(v, kind="stable")[:k]))
+
+
+def test_sort_values_is_numpy_sort():
+    rng = np.random.default_rng(6)
+    sort = jax.jit(sort_values)
+    for k in (1, 7, 500):
+        x = np.round(rng.normal(0, 3, (3, k)), 1)  # ties
+        x[0, : k // 3] = np.inf
+        got = np.asarray(sort(jnp.asarray(x, jnp.float32)))
+        assert got.shape[-1] == 1 << (k - 1).bit_length()
+        np.testing.assert_array_equal(got[:, :k], np.sort(x.astype(np.float32), axis=-1))
+        assert np.all(np.isinf(got[:, k:]))
 
 
 def test_neighbour_count_and_errors():
