@@ -88,8 +88,21 @@ def test_overlapping_objects_average_and_baselines_dispatch(inpainter):
         filter_frame(img, a[None], "nope")
     with pytest.raises(ValueError, match="masks must be bool"):
         filter_frame(img, a, "black")
-    with pytest.raises(ValueError, match="needs an Inpainter"):
-        filter_frame(img, a[None], "edgeconnect")
+
+
+def test_edgeconnect_without_model_uses_the_embedded_checkpoint():
+    from privslam_jax.inpaint.filter import EMBEDDED_INPAINTER
+
+    img, _ = _frame(2)
+    a = _box(72, 160, 10, 40, 10, 40)
+    if not EMBEDDED_INPAINTER.is_file():
+        with pytest.raises(FileNotFoundError, match="embedded inpainter"):
+            filter_frame(img, a[None], "edgeconnect")
+        return
+    explicit = Inpainter.load(EMBEDDED_INPAINTER)
+    assert explicit.config.width == 16 and EMBEDDED_INPAINTER.stat().st_size <= 10 * 2**20
+    np.testing.assert_array_equal(filter_frame(img, a[None], "edgeconnect"),
+                                  filter_frame(img, a[None], "edgeconnect", inpainter=explicit))
 
 
 def test_save_load_roundtrip(inpainter, tmp_path):
@@ -113,3 +126,24 @@ def test_second_frame_does_not_recompile(inpainter):
     n = inpainter._run._cache_size()
     filter_frame(img, np.stack([a, b]), inpainter=inpainter)
     assert inpainter._run._cache_size() == n == 1
+
+
+def test_without_edge_model_feeds_only_outside_edges(inpainter):
+    """Ablation forward = the image generator on ê = edges·(1 − band), no edge generator call."""
+    import jax.numpy as jnp
+
+    from privslam_jax.inpaint.masks import safe_canny, to_grey
+
+    img, _ = _frame(5)
+    a = _box(72, 160, 20, 50, 40, 80)
+    rgb, hole = extract(img, a, crop_box(a, CFG.crop_pad, CFG.min_crop), CFG.size)
+    grey = to_grey(rgb)
+    edges, band = safe_canny(grey, hole, sigma=CFG.sigma)
+    _, ig = inpainter.modules
+    f = lambda x: jnp.asarray(x, jnp.float32)[None, ..., None]  # noqa: E731
+    m = f(hole)
+    y = ig(jnp.concatenate([jnp.asarray(rgb)[None] * (1 - m) + m, f(edges * (1 - band))], axis=-1))
+    ref = np.asarray(y * m + jnp.asarray(rgb)[None] * (1 - m))[0]
+    abl = inpainter.without_edge_model()
+    np.testing.assert_allclose(abl.inpaint_crop(rgb, hole), ref, atol=1e-5)
+    assert not np.allclose(inpainter.inpaint_crop(rgb, hole), ref, atol=1e-4)  # the edge model does change it

@@ -29,3 +29,12 @@ def test_evaluate_frames_black_psnr_closed_form():
     np.testing.assert_allclose(res["black"]["l1"][0], np.mean(frames[0].background[hidden]), rtol=1e-5)
     table = markdown_table(res)
     assert table.count("\n") == 3 and "| black | 2 |" in table
+
+
+def test_markdown_table_paired_difference_to_telea():
+    res = {"telea": {"psnr": np.array([10.0, 12.0, 20.0]), "ssim": np.ones(3), "l1": np.ones(3)},
+           "ours": {"psnr": np.array([13.0, 12.5, 21.0]), "ssim": np.ones(3), "l1": np.ones(3)}}
+    rows = {r.split("|")[1].strip(): r for r in markdown_table(res).splitlines()[2:]}
+    d = res["ours"]["psnr"] - res["telea"]["psnr"]
+    assert f"{d.mean():+.2f} [{np.percentile(d, 25):+.2f}, {np.percentile(d, 75):+.2f}]" in rows["ours"]
+    assert "+0.00 [+0.00, +0.00]" in rows["telea"]

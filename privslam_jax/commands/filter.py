@@ -14,7 +14,9 @@ detections); with ground-truth masks, which exist for the left camera only, it i
 ``privslam synth``); ``detect`` runs the YOLOv8 detector (``--detector``: an ultralytics ``.pt``
 or our ``.npz``; default ``../shared/weights/yolov8n.pt`` when present) with the paper's privacy
 preset (person, bicycle, car, motorcycle, bus, truck at confidence 0.4) and masks its boxes.
-``--method edgeconnect`` needs ``--model`` (an ``Inpainter`` ``.npz`` from ``train/inpaint.py``).
+``--method edgeconnect`` uses ``--model`` (an ``Inpainter`` ``.npz`` from ``train/inpaint.py``) or,
+without it, the embedded CPU-preset checkpoint (``privslam_jax/assets/inpainter_cpu16.npz``, see
+``docs/model_card_inpainter.md``).
 """
 
 from __future__ import annotations
@@ -43,7 +45,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--masks", choices=("gt", "detect"), default=None,
                    help="ground-truth synthetic masks or detections (default: gt when masks/ exists)")
     p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz)")
-    p.add_argument("--model", type=Path, default=None, help="EdgeConnect Inpainter .npz (for edgeconnect)")
+    p.add_argument("--model", type=Path, default=None,
+                   help="EdgeConnect Inpainter .npz (for edgeconnect; default: the embedded checkpoint)")
     p.add_argument("--dilation", type=int, default=4, help="mask dilation in pixels (default 4)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise baselines")
     p.set_defaults(func=run)
@@ -87,9 +90,7 @@ def filter_sequence(
         raise FileNotFoundError(f"--masks gt needs {seq.path / 'masks'} (written by `privslam synth`)")
     inpainter = None
     if method == "edgeconnect":
-        if model_path is None:
-            raise ValueError("--method edgeconnect needs --model PATH (an Inpainter .npz from train/inpaint.py)")
-        inpainter = Inpainter.load(model_path)
+        inpainter = Inpainter.embedded() if model_path is None else Inpainter.load(model_path)
     detector = None
     if masks_source == "detect":
         from privslam_jax._shared import shared_dir

@@ -1,13 +1,16 @@
 """Compare privacy-filter methods inside the privacy masks against the object-free render.
 
-``python -m privslam_jax.inpaint.evaluate SEQUENCE [--model M.npz] [--methods telea,ns,...] [--out R.md]``
+``python -m privslam_jax.inpaint.evaluate SEQUENCE [SEQUENCE ...] [--model M.npz] [--methods edgeconnect,telea,...]
+[--ablate-edges] [--out R.md]``
 
-``SEQUENCE`` is a sequence written by ``privslam synth`` (``masks/`` + ``background/``). For every
+Each ``SEQUENCE`` is a sequence written by ``privslam synth`` (``masks/`` + ``background/``). For every
 frame with privacy objects, the ground-truth instance masks (dilated by ``--dilation``) are
 filtered with each method and PSNR, SSIM and L1 are measured **inside the union mask** against
 the ``background`` render (the scene without the objects). The per-frame values are summarised
 by mean, median and the inter-quartile range; a Markdown table is printed (and written to
-``--out``).
+``--out``). ``edgeconnect`` uses ``--model`` or, without it, the embedded checkpoint;
+``--ablate-edges`` adds a row with the edge generator switched off (ê = the edges outside the hole
+only). The last column is the paired per-frame PSNR difference to ``telea`` (when evaluated).
 """
 
 from __future__ import annotations
@@ -56,16 +59,23 @@ def evaluate_frames(
 
 
 def markdown_table(results: dict[str, dict[str, np.ndarray]]) -> str:
-    """Mean, median and IQR of each metric per method."""
-    lines = ["| method | frames | PSNR mean (dB) | PSNR median [IQR] | SSIM mean | SSIM median [IQR] | L1 mean |",
-             "|---|---|---|---|---|---|---|"]
+    """Mean, median and IQR of each metric per method (+ paired mean PSNR difference to telea)."""
+    ref = results.get("telea", {}).get("psnr")
+    lines = ["| method | frames | PSNR mean (dB) | PSNR median [IQR] | SSIM mean | SSIM median [IQR] | L1 mean "
+             "| ΔPSNR vs telea, paired mean [IQR] |",
+             "|---|---|---|---|---|---|---|---|"]
     for m, d in results.items():
         p, s = d["psnr"], d["ssim"]
         if len(p) == 0:
-            lines.append(f"| {m} | 0 | – | – | – | – | – |")
+            lines.append(f"| {m} | 0 | – | – | – | – | – | – |")
             continue
         q = lambda x: f"{np.median(x):.3f} [{np.percentile(x, 25):.3f}, {np.percentile(x, 75):.3f}]"  # noqa: E731
-        lines.append(f"| {m} | {len(p)} | {p.mean():.2f} | {q(p)} | {s.mean():.4f} | {q(s)} | {d['l1'].mean():.4f} |")
+        dp = "–"
+        if ref is not None and len(ref) == len(p):
+            dd = p - ref
+            dp = f"{dd.mean():+.2f} [{np.percentile(dd, 25):+.2f}, {np.percentile(dd, 75):+.2f}]"
+        lines.append(f"| {m} | {len(p)} | {p.mean():.2f} | {q(p)} | {s.mean():.4f} | {q(s)} | {d['l1'].mean():.4f} "
+                     f"| {dp} |")
     return "\n".join(lines)
 
 
@@ -73,24 +83,33 @@ def main(argv: list[str] | None = None) -> int:
     from privslam_jax.data.kitti import KittiSequence
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("sequence", type=Path)
-    p.add_argument("--model", type=Path, help="Inpainter .npz (adds the 'edgeconnect' method)")
-    p.add_argument("--methods", default="black,gray,gaussian,noise50,telea,ns")
+    p.add_argument("sequence", type=Path, nargs="+")
+    p.add_argument("--model", type=Path, help="Inpainter .npz for 'edgeconnect' (default: the embedded one)")
+    p.add_argument("--methods", default="edgeconnect,black,gray,gaussian,noise50,telea,ns")
+    p.add_argument("--ablate-edges", action="store_true", help="add edgeconnect without its edge generator")
     p.add_argument("--dilation", type=int, default=4)
     p.add_argument("--out", type=Path)
     a = p.parse_args(argv)
-    seq = KittiSequence(a.sequence)
+    seqs = [KittiSequence(s) for s in a.sequence]
     methods = [m for m in a.methods.split(",") if m]
     inpainter = None
-    if a.model is not None:
-        inpainter = Inpainter.load(a.model)
-        methods = ["edgeconnect"] + methods
-    res = evaluate_frames((seq[i] for i in range(len(seq))), methods, inpainter=inpainter, dilation=a.dilation)
+    if "edgeconnect" in methods or a.ablate_edges:
+        inpainter = Inpainter.load(a.model) if a.model is not None else Inpainter.embedded()
+
+    def frames():
+        return (s[i] for s in seqs for i in range(len(s)))
+
+    res = evaluate_frames(frames(), methods, inpainter=inpainter, dilation=a.dilation)
+    if a.ablate_edges:
+        abl = evaluate_frames(frames(), ["edgeconnect"], inpainter=inpainter.without_edge_model(),
+                              dilation=a.dilation)
+        res["edgeconnect, no edge model"] = abl["edgeconnect"]
     table = markdown_table(res)
     print(table)
     if a.out is not None:
         a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(f"Sequence `{a.sequence}`, dilation {a.dilation}, model `{a.model}`\n\n{table}\n")
+        names = ", ".join(f"`{s}`" for s in a.sequence)
+        a.out.write_text(f"Sequences {names}, dilation {a.dilation}, model `{a.model or 'embedded'}`\n\n{table}\n")
     return 0
 
 

@@ -16,6 +16,7 @@ leak-free edges of :func:`~privslam_jax.inpaint.masks.safe_canny`):
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import jax
@@ -29,9 +30,12 @@ from privslam_jax.inpaint.crops import crop_box, extract, paste_back
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGenerator
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 
-__all__ = ["FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward", "filter_frame"]
+__all__ = ["EMBEDDED_INPAINTER", "FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward",
+           "filter_frame"]
 
 FILTER_METHODS: tuple[str, ...] = ("edgeconnect",) + baselines.METHODS
+EMBEDDED_INPAINTER = Path(__file__).resolve().parents[1] / "assets" / "inpainter_cpu16.npz"
+"""The shipped CPU-preset checkpoint (see ``docs/model_card_inpainter.md``); used when no model is given."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,10 +64,17 @@ def edgeconnect_forward(
     edges: Float[Array, "B S S 1"],
     hole: Float[Array, "B S S 1"],
     edge_hole: Float[Array, "B S S 1"],
+    use_edge_model: bool = True,
 ) -> tuple[Float[Array, "B S S 3"], Float[Array, "B S S 1"], Float[Array, "B S S 3"]]:
-    """Both stages; returns ``(composited image, full edge map ê, raw generator output)``."""
+    """Both stages; returns ``(composited image, full edge map ê, raw generator output)``.
+
+    ``use_edge_model=False`` is an ablation: ê keeps only the edges outside the band (none drawn
+    inside), to measure what the edge generator contributes."""
     b = edge_hole
-    e = edge_gen(jnp.concatenate([grey * (1 - b) + b, edges * (1 - b), b], axis=-1))
+    if use_edge_model:
+        e = edge_gen(jnp.concatenate([grey * (1 - b) + b, edges * (1 - b), b], axis=-1))
+    else:
+        e = jnp.zeros_like(edges)
     e_full = e * b + edges * (1 - b)
     y = inpaint_gen(jnp.concatenate([rgb * (1 - hole) + hole, e_full], axis=-1))
     return y * hole + rgb * (1 - hole), e_full, y
@@ -72,19 +83,32 @@ def edgeconnect_forward(
 class Inpainter:
     """EdgeConnect generators in eval mode plus one jitted forward at the model resolution."""
 
-    def __init__(self, edge_gen: EdgeGenerator, inpaint_gen: InpaintGenerator, config: InpainterConfig):
+    def __init__(self, edge_gen: EdgeGenerator, inpaint_gen: InpaintGenerator, config: InpainterConfig,
+                 use_edge_model: bool = True):
         if config.size % 4:
             raise ValueError(f"model size must be a multiple of 4, got {config.size}")
         self.config = config
+        self.use_edge_model = use_edge_model
         edge_gen.eval()
         inpaint_gen.eval()
         self.graphdef, self.state = nnx.split((edge_gen, inpaint_gen))
 
         def run(state, rgb, grey, edges, hole, edge_hole):
             eg, ig = nnx.merge(self.graphdef, state)
-            return edgeconnect_forward(eg, ig, rgb, grey, edges, hole, edge_hole)[0]
+            return edgeconnect_forward(eg, ig, rgb, grey, edges, hole, edge_hole, use_edge_model)[0]
 
         self._run = jax.jit(run)
+
+    @classmethod
+    def embedded(cls) -> Inpainter:
+        """The shipped default checkpoint (:data:`EMBEDDED_INPAINTER`), loaded once per process."""
+        return _embedded()
+
+    def without_edge_model(self) -> Inpainter:
+        """The same generators with the edge generator switched off (ablation, see
+        :func:`edgeconnect_forward`)."""
+        eg, ig = self.modules
+        return Inpainter(eg, ig, self.config, use_edge_model=False)
 
     @classmethod
     def init(cls, config: InpainterConfig = InpainterConfig(), seed: int = 0) -> Inpainter:
@@ -145,6 +169,13 @@ class Inpainter:
         return np.asarray(out[0])
 
 
+@functools.lru_cache(maxsize=1)
+def _embedded() -> Inpainter:
+    if not EMBEDDED_INPAINTER.is_file():
+        raise FileNotFoundError(f"the embedded inpainter {EMBEDDED_INPAINTER} is missing; pass a model path")
+    return Inpainter.load(EMBEDDED_INPAINTER)
+
+
 def filter_frame(
     image: np.ndarray,
     masks: np.ndarray,
@@ -153,7 +184,9 @@ def filter_frame(
     inpainter: Inpainter | None = None,
     seed: int = 0,
 ) -> Float[np.ndarray, "H W 3"]:
-    """Hide every object of ``masks (K, H, W)`` in ``image (H, W, 3)`` (see module docstring)."""
+    """Hide every object of ``masks (K, H, W)`` in ``image (H, W, 3)`` (see module docstring).
+
+    ``method="edgeconnect"`` without ``inpainter`` uses the embedded default checkpoint."""
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image must be (H, W, 3) RGB, got shape {image.shape}")
     h, w = image.shape[:2]
@@ -170,7 +203,7 @@ def filter_frame(
     if method != "edgeconnect":
         return baselines.fill(image, hidden, method, seed=seed)
     if inpainter is None:
-        raise ValueError("method 'edgeconnect' needs an Inpainter (e.g. Inpainter.load(path))")
+        inpainter = Inpainter.embedded()
     cfg = inpainter.config
     acc = np.zeros((h, w, 3), np.float64)
     cnt = np.zeros((h, w), np.int32)
