@@ -6,7 +6,17 @@ Command: ``python train/detector.py --data DIR --num-classes N [--scale n] [--im
 Runs :func:`privslam_jax.detect.train.train` (ultralytics recipe, Optax, orbax checkpoints;
 re-running with the same ``--ckpt-dir`` resumes), then writes the EMA weights as a privslam
 ``.npz`` checkpoint usable by ``privslam detect --weights`` and, when ``--val-split`` is given,
-prints P, R, mAP50 and mAP50-95 on it (ultralytics val settings).
+prints P, R, mAP50 and mAP50-95 on it (ultralytics val settings; "rect" letterbox when
+``--imgh`` is given).
+
+``--synth-train-seeds A-B`` / ``--synth-val-seeds C-D`` first write the synthetic world as a YOLO
+dataset into ``--data`` (splits ``train`` / ``val``, skipped when the split already exists;
+:func:`privslam_jax.data.yolo.export_synthetic_yolo`, label rule
+:class:`privslam_jax.data.yolo.SynthLabelRule`). ``--coco-names`` stores COCO class names
+(ids 0..num_classes-1) in the checkpoint. The embedded detector was made with (docs/model_card_detector.md)::
+
+    python train/detector.py --data /work/det_run/synth --num-classes 8 --coco-names \
+        --synth-train-seeds 1-250 --synth-val-seeds 100001-100015 --imgsz 640 --imgh 192 ...
 """
 
 from __future__ import annotations
@@ -20,6 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from privslam_jax._xla import configure_xla  # noqa: E402
 
 configure_xla()
+
+COCO_NAMES_8 = ("person", "bicycle", "car", "motorcycle", "airplane", "bus", "train", "truck")
+"""COCO names of ids 0..7: an 8-class head covers the privacy classes 0, 1, 2, 3, 5, 7 with their COCO ids."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,15 +55,41 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ckpt-dir", default=None)
     p.add_argument("--ckpt-every", type=int, default=100)
     p.add_argument("--out", type=Path, default=Path("detector.npz"))
+    p.add_argument("--imgh", type=int, default=None, help="rect training canvas height (e.g. 192 with --imgsz 640)")
+    p.add_argument("--optimizer", choices=("sgd", "adamw"), default="sgd")
+    p.add_argument("--momentum", type=float, default=0.937)
+    p.add_argument("--lrf", type=float, default=0.01)
+    p.add_argument("--cos-lr", action="store_true")
+    p.add_argument("--warmup-epochs", type=float, default=3.0)
+    p.add_argument("--max-steps", type=int, default=None, help="stop after this many steps (schedule still spans --epochs)")
+    p.add_argument("--coco-names", action="store_true", help="store COCO class names in the checkpoint")
+    p.add_argument("--synth-train-seeds", default=None, help="A-B: export synthetic seeds A..B as the train split first")
+    p.add_argument("--synth-val-seeds", default=None, help="C-D: export synthetic seeds C..D as the val split first")
+    p.add_argument("--synth-frames", type=int, default=16, help="frames per synthetic seed")
+    p.add_argument("--synth-stride", type=int, default=12, help="frame stride within a synthetic seed")
     a = p.parse_args(argv)
-    cfg = TrainConfig(data=a.data, num_classes=a.num_classes, split=a.split, scale=a.scale, imgsz=a.imgsz,
-                      batch_size=a.batch, epochs=a.epochs, lr0=a.lr0, seed=a.seed, ckpt_dir=a.ckpt_dir,
-                      ckpt_every=a.ckpt_every)
+    for split, seeds in (("train", a.synth_train_seeds), ("val", a.synth_val_seeds)):
+        if seeds and not (Path(a.data) / "images" / split).is_dir():
+            from privslam_jax.data.yolo import export_synthetic_yolo
+
+            lo, hi = (int(v) for v in seeds.split("-"))
+            n = export_synthetic_yolo(a.data, split, range(lo, hi + 1), a.synth_frames, a.synth_stride)
+            print(f"wrote {n} synthetic frames (seeds {lo}-{hi}) to {a.data}/images/{split}")
+    cfg = TrainConfig(data=a.data, num_classes=a.num_classes, split=a.split, scale=a.scale, imgsz=a.imgsz, imgh=a.imgh,
+                      batch_size=a.batch, epochs=a.epochs, lr0=a.lr0, lrf=a.lrf, cos_lr=a.cos_lr, momentum=a.momentum,
+                      warmup_epochs=a.warmup_epochs, optimizer=a.optimizer, seed=a.seed, ckpt_dir=a.ckpt_dir,
+                      ckpt_every=a.ckpt_every, max_steps=a.max_steps)
     result = train(cfg)
-    save_checkpoint(result.model, a.out)
+    names = None
+    if a.coco_names:
+        if a.num_classes > len(COCO_NAMES_8):
+            raise ValueError(f"--coco-names knows the first {len(COCO_NAMES_8)} COCO names, got {a.num_classes} classes")
+        names = {i: COCO_NAMES_8[i] for i in range(a.num_classes)}
+    save_checkpoint(result.model, a.out, names)
     print(f"wrote {a.out} after {result.step} steps")
     if a.val_split:
-        det = Detector(result.model, DetectorConfig(imgsz=a.imgsz, mode="square", conf=0.001, iou=0.7, multi_label=True))
+        mode = "rect" if a.imgh else "square"
+        det = Detector(result.model, DetectorConfig(imgsz=a.imgsz, mode=mode, conf=0.001, iou=0.7, multi_label=True))
         m = evaluate_yolo_folder(det, a.data, a.val_split)
         print(" ".join(f"{k} {v:.4f}" for k, v in m.as_dict().items()))
     return 0
