@@ -77,3 +77,33 @@ def test_bad_input(tmp_path):
         YoloDataset(tmp_path, "train")
     with pytest.raises(ValueError, match="class ids"):
         write_yolo_labels(tmp_path / "x.txt", np.zeros(2, np.int32), np.zeros((1, 4)), 10, 10)
+
+
+def test_synthetic_label_rule_against_plain_numpy():
+    from types import SimpleNamespace
+
+    from privslam_jax.data.yolo import SynthLabelRule, synthetic_labels
+
+    rng = np.random.default_rng(3)
+    inst = np.zeros((40, 120), np.int32)
+    specs = {}  # instance -> (x1, y1, x2, y2) of a filled rectangle
+    for k, (x, y, w, h) in enumerate([(2, 2, 20, 30), (30, 5, 5, 12), (40, 5, 10, 9), (60, 1, 8, 13), (80, 3, 30, 30)], 1):
+        inst[y : y + h, x : x + w] = k
+        specs[k] = (x, y, x + w, y + h)
+    blk = inst[3:33, 80:110]
+    blk[rng.random(blk.shape) < 0.97] = 0  # instance 5: big box, few visible pixels
+    boxes = np.array([specs[k] for k in (1, 2, 3, 4, 5)], np.float32)
+    frame = SimpleNamespace(boxes=boxes, class_ids=np.array([0, 2, 7, 1, 5], np.int32),
+                            instance_of_box=np.array([1, 2, 3, 4, 5], np.int32), instance_ids=inst)
+    rule = SynthLabelRule(min_width=6.0, min_height=12.0, min_visible_px=60)
+    cls, kept = synthetic_labels(frame, rule)
+    expect = [k for k in (1, 2, 3, 4, 5)
+              if boxes[k - 1, 2] - boxes[k - 1, 0] >= 6 and boxes[k - 1, 3] - boxes[k - 1, 1] >= 12
+              and (inst == k).sum() >= 60]
+    assert expect == [1, 4]  # 2 too narrow, 3 too short, 5 mostly hidden
+    np.testing.assert_array_equal(kept, boxes[np.array(expect) - 1])
+    np.testing.assert_array_equal(cls, frame.class_ids[np.array(expect) - 1])
+    empty = SimpleNamespace(boxes=np.zeros((0, 4), np.float32), class_ids=np.zeros(0, np.int32),
+                            instance_of_box=np.zeros(0, np.int32), instance_ids=np.zeros((4, 4), np.int32))
+    c0, b0 = synthetic_labels(empty)
+    assert c0.shape == (0,) and b0.shape == (0, 4)
