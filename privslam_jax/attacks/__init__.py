@@ -7,4 +7,5 @@ from privslam_jax.attacks.line2point import (
     line2point,
     num_coarse_neighbours,
     select_smallest,
+    sort_values,
 )
