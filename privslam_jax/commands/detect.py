@@ -28,7 +28,8 @@ __all__ = ["add_parser", "run", "list_images", "EMBEDDED_WEIGHTS"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 EMBEDDED_WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "detector_yolov8n_privacy.npz"
-"""Where the embedded default detector lives once it has been trained (issue 3, item 7)."""
+"""The embedded default detector (same path as ``privslam_jax.detect.EMBEDDED_WEIGHTS``; not imported
+from there to keep ``privslam --help`` free of JAX)."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -88,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     weights = args.weights
     if weights is None:
         if not EMBEDDED_WEIGHTS.is_file():
-            raise ValueError("no embedded detector is shipped yet: pass --weights PATH "
+            raise ValueError(f"no embedded detector at {EMBEDDED_WEIGHTS}: pass --weights PATH "
                              "(an ultralytics .pt such as yolov8n.pt, or a privslam .npz checkpoint)")
         weights = EMBEDDED_WEIGHTS
     classes = PRIVACY_CLASSES if args.classes == "privacy" else None

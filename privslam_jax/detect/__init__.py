@@ -2,7 +2,14 @@
 
 from privslam_jax.detect.decode import box_iou, decode_head, make_anchors, nms, non_max_suppression, scale_boxes
 from privslam_jax.detect.loss import LossConfig, detection_loss, task_aligned_assign, targets_to_padded
-from privslam_jax.detect.predict import PRIVACY_CLASSES, PRIVACY_PRESET, Detector, DetectorConfig, letterbox
+from privslam_jax.detect.predict import (
+    EMBEDDED_WEIGHTS,
+    PRIVACY_CLASSES,
+    PRIVACY_PRESET,
+    Detector,
+    DetectorConfig,
+    letterbox,
+)
 from privslam_jax.detect.weights import (
     UnsafeCheckpointError,
     load_detector,
@@ -15,6 +22,7 @@ from privslam_jax.detect.weights import (
 from privslam_jax.detect.yolov8 import SCALES, YOLOv8, YOLOv8Config, count_parameters
 
 __all__ = [
+    "EMBEDDED_WEIGHTS",
     "LossConfig",
     "detection_loss",
     "task_aligned_assign",

@@ -37,7 +37,8 @@ from privslam_jax.detect.decode import decode_head, non_max_suppression
 from privslam_jax.detect.yolov8 import STRIDES, YOLOv8
 from privslam_jax.types import Detections
 
-__all__ = ["DetectorConfig", "Detector", "Letterboxed", "letterbox", "PRIVACY_CLASSES", "PRIVACY_PRESET"]
+__all__ = ["DetectorConfig", "Detector", "Letterboxed", "letterbox", "PRIVACY_CLASSES", "PRIVACY_PRESET",
+           "EMBEDDED_WEIGHTS"]
 
 PRIVACY_CLASSES: tuple[int, ...] = (0, 1, 2, 3, 5, 7)
 """COCO ids of the privacy-sensitive classes: person, bicycle, car, motorcycle, bus, truck."""
@@ -75,6 +76,9 @@ class DetectorConfig:
 
 PRIVACY_PRESET = DetectorConfig(conf=0.4, classes=PRIVACY_CLASSES)
 """The paper's privacy filter: person, bicycle, car, motorcycle, bus, truck at confidence 0.4."""
+
+EMBEDDED_WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "detector_yolov8n_privacy.npz"
+"""The embedded default detector (:meth:`Detector.embedded`; model card: docs/model_card_detector.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,6 +175,18 @@ class Detector:
 
         model, names = load_detector(path)
         return cls(model, config, names)
+
+    @classmethod
+    def embedded(cls, config: DetectorConfig = PRIVACY_PRESET) -> "Detector":
+        """The detector shipped in the package (``privslam_jax/assets``, docs/model_card_detector.md).
+
+        A YOLOv8n trained from scratch on the synthetic world: 8-class head whose ids are COCO ids
+        0-7 (it only ever saw person 0, bicycle 1, car 2, motorcycle 3, bus 5, truck 7), trained on
+        640×192 frames (use ``imgsz=640`` "rect"). Loads from the package, never from the network.
+        """
+        if not EMBEDDED_WEIGHTS.is_file():
+            raise FileNotFoundError(f"no embedded detector shipped at {EMBEDDED_WEIGHTS}")
+        return cls.from_weights(EMBEDDED_WEIGHTS, config)
 
     def with_config(self, config: DetectorConfig) -> "Detector":
         """The same network with other settings (shares the compiled forward)."""
