@@ -5,10 +5,12 @@ disk under the run folder and can be inspected or fed to the matching ``privslam
 
 1. **data** – render the synthetic street world into a KITTI-layout sequence
    (:func:`privslam_jax.commands.synth.write_kitti_sequence`) → ``OUT/original``.
-2. **privacy filter** (client side) – remove every privacy object from the left images
-   (:func:`privslam_jax.commands.filter.filter_sequence`; ground-truth masks, a leak-free fill)
-   → ``OUT/filtered``.  Until an embedded inpainter and detector ship, the default is OpenCV Telea
-   on the ground-truth masks.
+2. **privacy filter** (client side) – detect the privacy objects in the left images and remove
+   them (:func:`privslam_jax.commands.filter.filter_sequence`, a leak-free fill) → ``OUT/filtered``.
+   ``masks="detect"`` uses the embedded detector (or ``detector``), ``masks="gt"`` the renderer's
+   instance masks. Because the ground truth is known, the report also says how much of each
+   object the filter missed (:func:`mask_leak`): a detector miss is a privacy leak that no fill
+   can repair.
 3. **SLAM** (edge-server side) – monocular SLAM on the original and on the filtered frames
    (:func:`privslam_jax.slam.run_slam`) → ``OUT/slam_original``, ``OUT/slam_filtered`` with
    trajectories, maps and ATE/RPE against the ground truth.
@@ -30,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PipelineConfig", "run_pipeline"]
+__all__ = ["PipelineConfig", "run_pipeline", "mask_leak"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,9 +50,13 @@ class PipelineConfig:
     name: str = "synth"
     """Sequence name in the KITTI layout."""
     filter_method: str = "telea"
-    """Privacy filter (any ``privslam filter --method``; ``edgeconnect`` needs ``inpainter``)."""
+    """Privacy filter (any ``privslam filter --method``)."""
     inpainter: str | None = None
-    """EdgeConnect checkpoint for ``filter_method="edgeconnect"``."""
+    """EdgeConnect checkpoint for ``filter_method="edgeconnect"`` (``None``: the embedded one)."""
+    masks: str = "gt"
+    """Where the filter's masks come from: ``"detect"`` (a detector) or ``"gt"`` (the renderer's)."""
+    detector: str | None = None
+    """Detector weights for ``masks="detect"`` (``None``: the embedded detector)."""
     slam: bool = True
     """Run SLAM on the original and the filtered frames."""
     attack: bool = True
@@ -94,6 +100,39 @@ def _privacy(map_xyz: np.ndarray, out: Path, seed: int | None, progress: bool) -
     }
 
 
+def mask_leak(original: Path, filtered: Path, min_pixels: int = 50, visible: float = 0.5) -> dict[str, Any]:
+    """How much of the ground-truth objects the privacy filter left unmasked.
+
+    For every frame, each ground-truth instance of ``original/masks`` (uint16 instance ids) with at
+    least ``min_pixels`` pixels is compared with the filter's mask ``filtered/masks`` (label map,
+    > 0 = hidden). Returns the number of such objects (instance × frame), the percentage with more
+    than ``visible`` of their pixels left unmasked (``objects_left_visible``), and the percentage of
+    all their pixels left unmasked (``pixels_left_visible``).
+    """
+    from privslam_jax.data.images import read_raw
+
+    n = left = px = px_left = 0
+    for f in sorted((original / "masks").glob("*.png")):
+        ids = read_raw(f)
+        hidden = read_raw(filtered / "masks" / f.name) > 0
+        for k in np.unique(ids[ids > 0]):
+            inst = ids == k
+            size = int(inst.sum())
+            if size < min_pixels:
+                continue
+            missed = int((inst & ~hidden).sum())
+            n += 1
+            left += missed > visible * size
+            px += size
+            px_left += missed
+    return {
+        "objects": n,
+        "objects_left_visible": 100.0 * left / max(n, 1),
+        "pixels_left_visible": 100.0 * px_left / max(px, 1),
+        "rule": f"instances of >= {min_pixels} px; 'left visible' = more than {visible:.0%} of its pixels unmasked",
+    }
+
+
 def _fmt(m: dict[str, Any], key: str) -> str:
     v = m.get(key)
     return "n/a" if v is None else f"{v:.3f}"
@@ -118,12 +157,28 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
     report: dict[str, Any] = {"sequence": str(seq_dir), "data": sequence_stats(seq, frames=records)}
     lines = [summarize_sequence(seq, frames=records, title=f"synthetic sequence {seq_dir}")]
 
+    if config.masks not in ("detect", "gt"):
+        raise ValueError(f"masks must be 'detect' or 'gt', got {config.masks!r}")
+    detector = None
+    if config.masks == "detect":
+        from privslam_jax.commands.detect import EMBEDDED_WEIGHTS
+
+        detector = Path(config.detector) if config.detector is not None else EMBEDDED_WEIGHTS
+        if not detector.is_file():
+            raise FileNotFoundError(f"no detector weights at {detector} (use masks='gt' or pass a detector)")
     filtered_dir = filter_sequence(
-        seq_dir, out / "filtered", config.filter_method, masks_source="gt",
+        seq_dir, out / "filtered", config.filter_method, masks_source=config.masks, detector_path=detector,
         model_path=None if config.inpainter is None else Path(config.inpainter), progress=progress,
     )
-    report["filter"] = {"method": config.filter_method, "masks": "gt", "sequence": str(filtered_dir)}
-    lines.append(f"privacy filter: {config.filter_method} on ground-truth masks -> {filtered_dir}")
+    leak = mask_leak(seq_dir, filtered_dir)
+    source = "ground-truth masks" if config.masks == "gt" else f"detections of {detector.name}"
+    report["filter"] = {"method": config.filter_method, "masks": config.masks, "detector": None if detector is None else str(detector),
+                        "sequence": str(filtered_dir), "leak": leak}
+    lines.append(
+        f"privacy filter: {config.filter_method} on {source} -> {filtered_dir}; "
+        f"{leak['objects_left_visible']:.1f}% of {leak['objects']} objects left visible "
+        f"({leak['pixels_left_visible']:.1f}% of their pixels)"
+    )
 
     if config.slam:
         slam: dict[str, Any] = {}

@@ -42,3 +42,29 @@ def test_run_writes_every_stage_and_consistent_report(tmp_path, capsys):
     assert abs(priv["line2point"]["within_0.5"] - 100 * np.mean(e < 0.5)) < 1e-6
     assert abs(priv["line2point"]["per_point_median"] - np.median(e)) < 1e-5
     assert "Line2Point recovers" in printed
+    # ground-truth masks (dilated) hide every object entirely
+    assert report["filter"]["leak"]["objects"] > 0
+    assert report["filter"]["leak"]["objects_left_visible"] == 0.0
+
+
+def test_mask_leak_counts_objects_and_pixels_left_unmasked(tmp_path):
+    from privslam_jax.data.images import write_uint16
+    from privslam_jax.pipeline import mask_leak
+
+    (tmp_path / "o" / "masks").mkdir(parents=True)
+    (tmp_path / "f" / "masks").mkdir(parents=True)
+    ids = np.zeros((40, 60), np.uint16)
+    ids[0:10, 0:10] = 1    # 100 px, fully hidden
+    ids[20:30, 0:10] = 2   # 100 px, 70 hidden -> not "left visible"
+    ids[0:10, 20:40] = 3   # 200 px, 40 hidden -> left visible
+    ids[30:35, 50:55] = 4  # 25 px: below min_pixels, ignored
+    hidden = np.zeros_like(ids)
+    hidden[0:10, 0:10] = 7
+    hidden[20:27, 0:10] = 8
+    hidden[0:10, 20:24] = 9
+    write_uint16(tmp_path / "o" / "masks" / "000000.png", ids)
+    write_uint16(tmp_path / "f" / "masks" / "000000.png", hidden)
+    leak = mask_leak(tmp_path / "o", tmp_path / "f", min_pixels=50)
+    assert leak["objects"] == 3
+    assert abs(leak["objects_left_visible"] - 100 / 3) < 1e-9
+    assert abs(leak["pixels_left_visible"] - 100 * (30 + 160) / 400) < 1e-9

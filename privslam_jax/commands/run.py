@@ -25,6 +25,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=d.seed, help=f"world seed (default {d.seed})")
     p.add_argument("--filter", default=d.filter_method, dest="filter_method",
                    help=f"privacy filter method (any of `privslam filter --method`; default {d.filter_method})")
+    p.add_argument("--masks", choices=("detect", "gt"), default=d.masks,
+                   help=f"filter masks from the detector or the renderer's ground truth (default {d.masks})")
+    p.add_argument("--detector", default=None, metavar="PATH", help="detector weights (default: the embedded detector)")
+    p.add_argument("--inpainter", default=None, metavar="PATH",
+                   help="EdgeConnect checkpoint for --filter edgeconnect (default: the embedded inpainter)")
     p.add_argument("--lift-seed", type=int, default=None, help="fixed lift seed (experiments only; default: OS entropy)")
     p.add_argument("--no-slam", action="store_true", help="stop after the privacy filter")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -35,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.pipeline import PipelineConfig, run_pipeline
 
     config = PipelineConfig(
-        frames=args.frames, seed=args.seed, filter_method=args.filter_method, lift_seed=args.lift_seed,
+        frames=args.frames, seed=args.seed, filter_method=args.filter_method, masks=args.masks,
+        detector=args.detector, inpainter=args.inpainter, lift_seed=args.lift_seed,
         slam=not args.no_slam, attack=not args.no_slam,
     )
     report = run_pipeline(config, args.out, progress=not args.quiet)
