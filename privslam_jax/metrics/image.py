@@ -8,12 +8,17 @@ Images are float ``(H, W, C)`` (or ``(H, W)``) in [0, ``data_range``]; masks boo
   (co)variances, "valid" filtering (no padding, as the authors' ``ssim_index.m``); the map is
   averaged over channels and over the windows whose centre lies in the mask (all windows when
   no mask is given).
+
+Every public function is jitted (one compile per image shape; eager dispatch cost ~0.6 s per
+640×192 SSIM).
 * L1 = mean absolute difference over the masked pixels and channels.
 * Edge precision / recall as EdgeConnect's ``EdgeAccuracy``: binarise at 0.5,
   ``P = TP / #predicted``, ``R = TP / #true`` (inside the mask when given; 1 when empty).
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -45,12 +50,14 @@ def _masked_mean(x: Float[Array, "H W C"], m: Array) -> Float[Array, ""]:
     return jnp.sum(x * w) / jnp.maximum(jnp.sum(w), 1.0)
 
 
+@jax.jit
 def l1(a: ArrayLike, b: ArrayLike, mask: ArrayLike | None = None) -> Float[Array, ""]:
     """Mean absolute difference (inside ``mask``)."""
     a, b, m = _prep(a, b, mask)
     return _masked_mean(jnp.abs(a - b), m)
 
 
+@functools.partial(jax.jit, static_argnames=("data_range",))
 def psnr(
     a: ArrayLike, b: ArrayLike, mask: ArrayLike | None = None, data_range: float = 1.0
 ) -> Float[Array, ""]:
@@ -67,16 +74,15 @@ def _gauss(size: int = 11, sigma: float = 1.5) -> np.ndarray:
 
 
 def _filter_valid(x: Float[Array, "H W C"], g: Array) -> Float[Array, "h w C"]:
+    """Separable "valid" correlation with ``g`` along H then W, as a sum of shifted slices
+    (XLA-CPU runs the equivalent 1-channel convolutions ~100× slower)."""
     k = g.shape[0]
-    x = jnp.moveaxis(x, -1, 0)[..., None]  # (C, H, W, 1)
-    kv = g.reshape(k, 1, 1, 1)
-    kh = g.reshape(1, k, 1, 1)
-    dn = ("NHWC", "HWIO", "NHWC")
-    y = jax.lax.conv_general_dilated(x, kv, (1, 1), "VALID", dimension_numbers=dn)
-    y = jax.lax.conv_general_dilated(y, kh, (1, 1), "VALID", dimension_numbers=dn)
-    return jnp.moveaxis(y[..., 0], 0, -1)
+    h, w = x.shape[0] - k + 1, x.shape[1] - k + 1
+    y = sum(g[i] * x[i:i + h] for i in range(k))
+    return sum(g[i] * y[:, i:i + w] for i in range(k))
 
 
+@functools.partial(jax.jit, static_argnames=("data_range", "win", "sigma"))
 def ssim_map(
     a: ArrayLike, b: ArrayLike, data_range: float = 1.0, win: int = 11, sigma: float = 1.5
 ) -> Float[Array, "h w C"]:
@@ -93,6 +99,7 @@ def ssim_map(
     return ((2 * mu_a * mu_b + c1) * (2 * sab + c2)) / ((mu_a**2 + mu_b**2 + c1) * (saa + sbb + c2))
 
 
+@functools.partial(jax.jit, static_argnames=("data_range",))
 def ssim(
     a: ArrayLike, b: ArrayLike, mask: ArrayLike | None = None, data_range: float = 1.0
 ) -> Float[Array, ""]:
@@ -104,6 +111,7 @@ def ssim(
     return _masked_mean(s, mc)
 
 
+@functools.partial(jax.jit, static_argnames=("threshold",))
 def edge_precision_recall(
     pred: ArrayLike, target: ArrayLike, mask: ArrayLike | None = None, threshold: float = 0.5
 ) -> tuple[Float[Array, ""], Float[Array, ""]]:
