@@ -93,7 +93,7 @@ class Line2PointConfig:
     """Lines nearest each estimated point used in refinement."""
     min_intersection: int = 10
     """Use the l2p ∩ p2l set when it has more than this many members."""
-    chunk_size: int = 128
+    chunk_size: int = 64
     """Rows per vectorised block of the neighbour search (memory ∝ chunk_size · N)."""
     rows_per_call: int = 4096
     """Upper bound of the rows per jitted call (progress granularity)."""
