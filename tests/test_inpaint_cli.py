@@ -85,3 +85,6 @@ def test_filter_command_edgeconnect_and_errors(tmp_path, capsys):
         assert main(["filter", str(seq), "--method", "edgeconnect", "--out", str(tmp_path / "o2")]) == 2
         assert "embedded inpainter" in capsys.readouterr().err
     assert main(["filter", str(tmp_path / "nope"), "--method", "black", "--out", str(tmp_path / "o3")]) == 2
+    from privslam_jax.cli import build_parser
+
+    assert build_parser().parse_args(["filter", str(seq), "--out", "x"]).method == "edgeconnect"  # the default
