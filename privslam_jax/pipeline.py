@@ -49,11 +49,11 @@ class PipelineConfig:
     """Image height, px."""
     name: str = "synth"
     """Sequence name in the KITTI layout."""
-    filter_method: str = "telea"
+    filter_method: str = "edgeconnect"
     """Privacy filter (any ``privslam filter --method``)."""
     inpainter: str | None = None
     """EdgeConnect checkpoint for ``filter_method="edgeconnect"`` (``None``: the embedded one)."""
-    masks: str = "gt"
+    masks: str = "detect"
     """Where the filter's masks come from: ``"detect"`` (a detector) or ``"gt"`` (the renderer's)."""
     detector: str | None = None
     """Detector weights for ``masks="detect"`` (``None``: the embedded detector)."""

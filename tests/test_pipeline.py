@@ -12,7 +12,7 @@ from privslam_jax.data.trajectory_io import read_tum_matrices
 
 def test_run_writes_every_stage_and_consistent_report(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["run", "--out", str(out), "--frames", "14", "--lift-seed", "3", "--quiet"]) == 0
+    assert main(["run", "--out", str(out), "--frames", "14", "--masks", "gt", "--lift-seed", "3", "--quiet"]) == 0
     printed = capsys.readouterr().out
     report = json.loads((out / "report.json").read_text())
     orig = out / "original" / "sequences" / "synth"
