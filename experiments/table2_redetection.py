@@ -46,6 +46,7 @@ configure_xla()
 
 from privslam_jax._shared import shared_dir  # noqa: E402
 from privslam_jax.detect import PRIVACY_CLASSES, Detector, DetectorConfig  # noqa: E402
+from privslam_jax.data.synthetic import parse_seeds  # noqa: E402
 from privslam_jax.detect.decode import box_iou  # noqa: E402
 from privslam_jax.inpaint.baselines import LEAKY_METHODS  # noqa: E402
 from privslam_jax.inpaint.filter import FILTER_METHODS, Inpainter, filter_frame  # noqa: E402
@@ -140,14 +141,6 @@ def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
 
 
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, sep, hi = part.partition("-")
-        out += list(range(int(lo), int(hi) + 1)) if sep else [int(lo)]
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--detector", type=Path, help="project detector for (a) (default: the embedded one)")
@@ -172,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         det = Detector.from_weights(det_path)
         det = det.with_config(privacy_config(det))
-        res, used = redetection(synthetic_frames(_seeds(a.seeds), a.frames), det, methods, inpainter, False,
+        res, used = redetection(synthetic_frames(parse_seeds(a.seeds), a.frames), det, methods, inpainter, False,
                                 "(a) synthetic")
         parts.append(table(res, used, f"(a) Synthetic held-out worlds {a.seeds} ({a.frames} frames each, 640×192), "
                                       f"project detector `{det_path.relative_to(ROOT) if det_path.is_relative_to(ROOT) else det_path}` "

@@ -207,3 +207,12 @@ def test_moving_objects_move():
     _, e0, _ = so.frame_primitives(tab, np.array([i]), p0, y0, tab.base, 0.0, 1)
     _, e1, _ = so.frame_primitives(tab, np.array([i]), p0, y0, tab.base, 0.3, 1)
     assert np.abs(e0[:, 6:15] - e1[:, 6:15]).max() > 0.05
+
+
+def test_parse_seeds_expands_inclusive_ranges_and_rejects_garbage():
+    from privslam_jax.data.synthetic import parse_seeds
+
+    assert parse_seeds("0-3,7,10-11") == list(range(0, 4)) + [7] + list(range(10, 12))
+    assert parse_seeds("5") == [5]
+    with pytest.raises(ValueError, match="bad seed list"):
+        parse_seeds("1-x")

@@ -72,9 +72,10 @@ def main(argv: list[str] | None = None) -> int:
         if seeds and not (Path(a.data) / "images" / split).is_dir():
             from privslam_jax.data.yolo import export_synthetic_yolo
 
-            lo, hi = (int(v) for v in seeds.split("-"))
-            n = export_synthetic_yolo(a.data, split, range(lo, hi + 1), a.synth_frames, a.synth_stride)
-            print(f"wrote {n} synthetic frames (seeds {lo}-{hi}) to {a.data}/images/{split}")
+            from privslam_jax.data.synthetic import parse_seeds
+
+            n = export_synthetic_yolo(a.data, split, parse_seeds(seeds), a.synth_frames, a.synth_stride)
+            print(f"wrote {n} synthetic frames (seeds {seeds}) to {a.data}/images/{split}")
     cfg = TrainConfig(data=a.data, num_classes=a.num_classes, split=a.split, scale=a.scale, imgsz=a.imgsz, imgh=a.imgh,
                       batch_size=a.batch, epochs=a.epochs, lr0=a.lr0, lrf=a.lrf, cos_lr=a.cos_lr, momentum=a.momentum,
                       warmup_epochs=a.warmup_epochs, optimizer=a.optimizer, seed=a.seed, ckpt_dir=a.ckpt_dir,

@@ -30,15 +30,6 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 configure_xla()
 
 
-def _parse_seeds(text: str) -> list[int]:
-    """``"0-3,7"`` → ``[0, 1, 2, 3, 7]``."""
-    out: list[int] = []
-    for part in text.split(","):
-        lo, sep, hi = part.partition("-")
-        out += list(range(int(lo), int(hi) + 1)) if sep else [int(lo)]
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     src = p.add_mutually_exclusive_group(required=True)
@@ -105,9 +96,9 @@ def main(argv: list[str] | None = None) -> int:
         if a.sequence is not None:
             data = CropBank.from_kitti_layout(a.sequence, a.size, seed=a.seed, frame_stride=a.frame_stride)
         else:
-            from privslam_jax.data.synthetic import SynthConfig
+            from privslam_jax.data.synthetic import SynthConfig, parse_seeds
 
-            seeds = _parse_seeds(a.synth_seeds) if a.synth_seeds else [a.synth_seed]
+            seeds = parse_seeds(a.synth_seeds) if a.synth_seeds else [a.synth_seed]
             data = CropBank.concat([
                 CropBank.from_synthetic(SynthConfig(num_frames=a.synth_frames, seed=s), a.size, seed=a.seed,
                                         frame_stride=a.frame_stride, progress=len(seeds) == 1)

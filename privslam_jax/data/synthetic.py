@@ -36,7 +36,7 @@ from privslam_jax.data._synth_textures import channel, current_channel, sharing
 from privslam_jax.data._synth_trace import trace
 from privslam_jax.types import Camera, Trajectory
 
-__all__ = ["SynthConfig", "SynthFrame", "SyntheticSequence", "make_sequence", "COCO_PRIVACY_CLASSES"]
+__all__ = ["SynthConfig", "SynthFrame", "SyntheticSequence", "make_sequence", "parse_seeds", "COCO_PRIVACY_CLASSES"]
 
 COCO_PRIVACY_CLASSES: dict[int, str] = {0: "person", 1: "bicycle", 2: "car", 3: "motorcycle", 5: "bus", 7: "truck"}
 """The privacy-sensitive COCO classes the world contains (id → name)."""
@@ -132,6 +132,18 @@ class SynthFrame:
     """(4, 4) float64 camera-to-world pose of the left camera."""
     background_depth: np.ndarray | None = None
     """(H, W) float32 z-depth of the object-free scene (0 = sky)."""
+
+
+def parse_seeds(text: str) -> list[int]:
+    """World seeds from a command-line list of seeds and inclusive ranges: ``"0-3,7"`` → ``[0, 1, 2, 3, 7]``."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, sep, hi = part.partition("-")
+        try:
+            out += list(range(int(lo), int(hi) + 1)) if sep else [int(lo)]
+        except ValueError:
+            raise ValueError(f"bad seed list {text!r}: expected seeds and ranges like '0-3,7'") from None
+    return out
 
 
 def _salt(seed: int) -> np.uint32:
