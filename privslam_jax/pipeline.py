@@ -159,20 +159,14 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
 
     if config.masks not in ("detect", "gt"):
         raise ValueError(f"masks must be 'detect' or 'gt', got {config.masks!r}")
-    detector = None
-    if config.masks == "detect":
-        from privslam_jax.commands.detect import EMBEDDED_WEIGHTS
-
-        detector = Path(config.detector) if config.detector is not None else EMBEDDED_WEIGHTS
-        if not detector.is_file():
-            raise FileNotFoundError(f"no detector weights at {detector} (use masks='gt' or pass a detector)")
+    detector = None if config.detector is None else Path(config.detector)
     filtered_dir = filter_sequence(
         seq_dir, out / "filtered", config.filter_method, masks_source=config.masks, detector_path=detector,
         model_path=None if config.inpainter is None else Path(config.inpainter), progress=progress,
     )
     leak = mask_leak(seq_dir, filtered_dir)
-    source = "ground-truth masks" if config.masks == "gt" else f"detections of {detector.name}"
-    report["filter"] = {"method": config.filter_method, "masks": config.masks, "detector": None if detector is None else str(detector),
+    source = "ground-truth masks" if config.masks == "gt" else f"detections of {'the embedded detector' if detector is None else detector.name}"
+    report["filter"] = {"method": config.filter_method, "masks": config.masks, "detector": "embedded" if detector is None else str(detector),
                         "sequence": str(filtered_dir), "leak": leak}
     lines.append(
         f"privacy filter: {config.filter_method} on {source} -> {filtered_dir}; "

@@ -47,7 +47,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, help="output root (sequences/<name> is created)")
     p.add_argument("--masks", choices=("gt", "detect"), default=None,
                    help="ground-truth synthetic masks or detections (default: gt when masks/ exists)")
-    p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz)")
+    p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz; default: the embedded detector)")
     p.add_argument("--model", type=Path, default=None,
                    help="EdgeConnect Inpainter .npz (for edgeconnect; default: the embedded checkpoint)")
     p.add_argument("--dilation", type=int, default=4, help="mask dilation in pixels (default 4)")
@@ -96,16 +96,9 @@ def filter_sequence(
         inpainter = Inpainter.embedded() if model_path is None else Inpainter.load(model_path)
     detector = None
     if masks_source == "detect":
-        from privslam_jax._shared import shared_dir
         from privslam_jax.detect import PRIVACY_PRESET, Detector
 
-        if detector_path is None:
-            sd = shared_dir()
-            cand = None if sd is None else sd / "weights" / "yolov8n.pt"
-            if cand is None or not cand.is_file():
-                raise FileNotFoundError("--masks detect needs --detector PATH (no default weights found)")
-            detector_path = cand
-        detector = Detector.from_weights(detector_path, PRIVACY_PRESET)
+        detector = Detector.embedded() if detector_path is None else Detector.from_weights(detector_path, PRIVACY_PRESET)
 
     out = Path(out)
     out_dir = out / "sequences" / seq.name
