@@ -9,7 +9,7 @@ import pytest
 from flax import nnx
 
 from privslam_jax.detect import YOLOv8, YOLOv8Config, count_parameters, decode_head
-from privslam_jax.detect.yolov8 import abstract_yolov8, init_yolov8
+from privslam_jax.detect.yolov8 import Conv, abstract_yolov8, fuse_batchnorm, init_yolov8
 
 
 @pytest.mark.parametrize(
@@ -46,6 +46,28 @@ def test_output_shapes_and_decode():
     probs = np.asarray(out[..., 4:])
     assert np.all((probs > 0) & (probs < 1))
     assert np.all(np.asarray(out[..., 2:4]) > 0)
+
+
+def test_fused_batchnorm_is_the_same_function():
+    # Folding eval-mode BatchNorm into the conv (ultralytics fuse_conv_and_bn) must not change the
+    # head output; non-trivial running statistics so a wrong fold (e.g. missing ε or μ) shows.
+    model = init_yolov8(YOLOv8Config(num_classes=3, scale="tiny"), seed=2)
+    rng = np.random.default_rng(3)
+    for _, node in nnx.iter_graph(model):
+        if isinstance(node, Conv):
+            c = node.bn.mean.shape[0]
+            node.bn.mean.set_value(jnp.asarray(rng.normal(0, 0.5, c), jnp.float32))
+            node.bn.var.set_value(jnp.asarray(rng.uniform(0.05, 3.0, c), jnp.float32))
+            node.bn.scale.set_value(jnp.asarray(rng.uniform(0.5, 1.5, c), jnp.float32))
+            node.bn.bias.set_value(jnp.asarray(rng.normal(0, 0.3, c), jnp.float32))
+    model.eval()
+    fused = fuse_batchnorm(model)
+    assert all(n.bn is None for _, n in nnx.iter_graph(fused) if isinstance(n, Conv))
+    assert all(n.bn is not None for _, n in nnx.iter_graph(model) if isinstance(n, Conv))  # original untouched
+    x = jnp.asarray(rng.random((1, 64, 96, 3), np.float32))
+    ref = jnp.concatenate([f.reshape(-1) for f in model(x)])
+    out = jnp.concatenate([f.reshape(-1) for f in fused(x)])
+    np.testing.assert_allclose(np.asarray(out), np.asarray(ref), rtol=1e-4, atol=1e-4 * float(jnp.abs(ref).max()))
 
 
 def test_init_matches_module_constructor_distributions():

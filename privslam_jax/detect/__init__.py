@@ -19,7 +19,7 @@ from privslam_jax.detect.weights import (
     read_torch_checkpoint,
     save_checkpoint,
 )
-from privslam_jax.detect.yolov8 import SCALES, YOLOv8, YOLOv8Config, count_parameters
+from privslam_jax.detect.yolov8 import SCALES, YOLOv8, YOLOv8Config, count_parameters, fuse_batchnorm
 
 __all__ = [
     "EMBEDDED_WEIGHTS",
@@ -38,6 +38,7 @@ __all__ = [
     "YOLOv8Config",
     "box_iou",
     "count_parameters",
+    "fuse_batchnorm",
     "decode_head",
     "load_detector",
     "load_state_dict",

@@ -34,7 +34,7 @@ import numpy as np
 from flax import nnx
 
 from privslam_jax.detect.decode import decode_head, non_max_suppression
-from privslam_jax.detect.yolov8 import STRIDES, YOLOv8
+from privslam_jax.detect.yolov8 import STRIDES, YOLOv8, fuse_batchnorm
 from privslam_jax.types import Detections
 
 __all__ = ["DetectorConfig", "Detector", "Letterboxed", "letterbox", "PRIVACY_CLASSES", "PRIVACY_PRESET",
@@ -159,7 +159,7 @@ class Detector:
         model.eval()
         self.model, self.config = model, config
         self.names = dict(names) if names else {i: str(i) for i in range(model.config.num_classes)}
-        graphdef, state = nnx.split(model)
+        graphdef, state = nnx.split(fuse_batchnorm(model))  # inference: BatchNorm folded (as ultralytics)
         self._state = state
         reg_max = model.config.reg_max
 

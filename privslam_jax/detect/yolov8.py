@@ -43,7 +43,8 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float
 
-__all__ = ["YOLOv8", "YOLOv8Config", "SCALES", "TORCH_LAYER_NAMES", "count_parameters", "init_yolov8", "abstract_yolov8"]
+__all__ = ["YOLOv8", "YOLOv8Config", "SCALES", "TORCH_LAYER_NAMES", "count_parameters", "init_yolov8", "abstract_yolov8",
+           "fuse_batchnorm"]
 
 SCALES: dict[str, tuple[float, float, int]] = {
     "n": (0.33, 0.25, 1024),
@@ -108,7 +109,8 @@ class Conv(nnx.Module):
         self.bn = nnx.BatchNorm(c2, epsilon=1e-3, momentum=0.97, rngs=rngs)
 
     def __call__(self, x: Float[Array, "B H W C"]) -> Float[Array, "B h w D"]:
-        return jax.nn.silu(self.bn(self.conv(x)))
+        y = self.conv(x)
+        return jax.nn.silu(y if self.bn is None else self.bn(y))  # bn is None once folded
 
 
 class Bottleneck(nnx.Module):
@@ -250,6 +252,27 @@ def count_parameters(model: YOLOv8) -> int:
     """
     params = nnx.state(model, nnx.Param)
     return int(sum(x.size for x in jax.tree.leaves(params))) + model.config.reg_max
+
+
+def fuse_batchnorm(model: YOLOv8) -> YOLOv8:
+    """An inference copy of ``model`` with every BatchNorm folded into its convolution.
+
+    ultralytics ``fuse_conv_and_bn``: with ``s = γ / √(σ² + ε)`` per output channel,
+    ``BN(W * x) = (s·W) * x + (β − μ·s)``, so the kernel is scaled and the conv gains a bias.  Uses
+    the running statistics (eval mode); the same function up to float rounding, one fewer
+    elementwise pass per layer (≈ 10 % of the CPU forward).  ``model`` is left unchanged; the copy
+    is for inference only (it has no BatchNorm to train).
+    """
+    model = nnx.clone(model)
+    convs = [node for _, node in nnx.iter_graph(model) if isinstance(node, Conv) and node.bn is not None]
+    for node in convs:
+        bn, conv = node.bn, node.conv
+        s = bn.scale[...] / jnp.sqrt(bn.var[...] + bn.epsilon)
+        conv.kernel.set_value(conv.kernel[...] * s[None, None, None, :])  # HWIO: per output channel
+        conv.bias = nnx.Param(bn.bias[...] - bn.mean[...] * s)
+        conv.use_bias = True
+        node.bn = None
+    return model
 
 
 def abstract_yolov8(config: YOLOv8Config = YOLOv8Config()) -> YOLOv8:
