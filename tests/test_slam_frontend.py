@@ -11,6 +11,7 @@ from privslam_jax.slam.frontend import (
     OrbConfig,
     extract_orb,
     hamming_pairs,
+    match_descriptors,
     rotation_consistent,
     search_by_projection,
     stereo_depths,
@@ -33,6 +34,27 @@ def test_hamming_pairs_matches_opencv():
     b = rng.integers(0, 256, (50, 32), dtype=np.uint8)
     ref = [cv2.norm(a[i], b[i], cv2.NORM_HAMMING) for i in range(50)]
     np.testing.assert_array_equal(hamming_pairs(a, b), np.array(ref, np.int64))
+
+
+def test_match_descriptors_equals_brute_force_and_handles_no_match():
+    rng = np.random.default_rng(5)
+    fb = _random_features(rng, 80)
+    src = rng.permutation(80)[:40]
+    fa = _random_features(rng, 40)
+    fa.desc[:] = fb.desc[src]
+    fa.desc[:, 0] ^= rng.integers(0, 8, 40).astype(np.uint8)  # ≤ 3 flipped bits
+    pairs = match_descriptors(fa, fb, ratio=0.8, max_dist=50, check_orientation=False)
+    # numpy reference: nearest and second nearest, ratio + distance tests, one match per b keypoint
+    d = np.unpackbits(fa.desc[:, None, :] ^ fb.desc[None, :, :], axis=-1).sum(-1)
+    o = np.argsort(d, axis=1, kind="stable")
+    best, d1, d2 = o[:, 0], d[np.arange(40), o[:, 0]], d[np.arange(40), o[:, 1]]
+    ok = (d1 <= 50) & (d1 < 0.8 * d2)
+    ref = {(i, int(best[i])) for i in np.flatnonzero(ok)
+           if all(d1[j] > d1[i] or j >= i for j in np.flatnonzero(ok & (best == best[i])))}
+    assert {tuple(p) for p in pairs.tolist()} == ref and len(ref) == 40
+    # nothing passes the distance test (a keyframe pair with no match): empty, not an error
+    none = match_descriptors(fa, fb, ratio=0.8, max_dist=-1)
+    assert none.shape == (0, 2) and none.dtype == np.int64
 
 
 def test_search_by_projection_equals_brute_force():

@@ -220,6 +220,8 @@ def match_descriptors(
     d2 = np.array([m[1].distance for m in knn if len(m) == 2])
     ok = (d1 <= max_dist) & (d1 < ratio * d2)
     q, t, d1 = q[ok], t[ok], d1[ok]
+    if q.size == 0:  # nothing passed the distance and ratio tests
+        return np.zeros((0, 2), np.int64)
     # one match per train keypoint: keep the smallest distance
     order = np.lexsort((d1, t))
     first = np.r_[True, np.diff(t[order]) != 0]
