@@ -15,8 +15,9 @@ dataset into ``--data`` (splits ``train`` / ``val``, skipped when the split alre
 :class:`privslam_jax.data.yolo.SynthLabelRule`). ``--coco-names`` stores COCO class names
 (ids 0..num_classes-1) in the checkpoint. The embedded detector was made with (docs/model_card_detector.md)::
 
-    python train/detector.py --data /work/det_run/synth --num-classes 8 --coco-names \
-        --synth-train-seeds 1-250 --synth-val-seeds 100001-100015 --imgsz 640 --imgh 192 ...
+    python train/detector.py --data DIR --num-classes 8 --coco-names \
+        --synth-train-seeds 1-200 --synth-val-seeds 100001-100016 --synth-frames 16 --synth-stride 12 \
+        --imgsz 640 --imgh 192 --batch 8 --epochs 16 --optimizer adamw --lr0 0.001 --momentum 0.9 ...
 """
 
 from __future__ import annotations
