@@ -1,6 +1,6 @@
 """Benchmark: jitted YOLOv8n forward latency (batch 1) at 192×640, 384×1248 and 640×640.
 
-Command: ``python benchmarks/bench_detector.py [--weights PATH] [--runs 40] [--block 10]``
+Command: ``python benchmarks/bench_detector.py [--weights PATH] [--runs 40] [--block 10] [--layers]``
 
 Prints, per input size, the compile time of the jitted forward (network + DFL decode) and the
 median / min latency of ``--runs`` runs after compilation. When ``torch`` and ``ultralytics`` are
@@ -12,6 +12,10 @@ timed in alternating blocks of ``--block`` runs rather than run by run: torch's 
 keep spinning for a while after each call and slowed the XLA call right after it by ~40 % at
 192×640 (and XLA's threads the torch call), which measured the hand-over, not either library.
 Without weights a randomly initialised YOLOv8n (80 classes) is timed (same compute).
+
+``--layers`` adds, for the 384×1248 input, the median latency of every top-level block (ultralytics
+layer index, our attribute name) timed alone, ours and ultralytics' on the inputs that block sees in
+the ultralytics forward, to show where the two libraries differ.
 
 XLA flags are set as the CLI sets them (``privslam_jax._xla``) before jax is imported.
 On a shared machine the numbers are noisy: report the load alongside them.
@@ -40,7 +44,7 @@ from flax import nnx  # noqa: E402
 from privslam_jax._shared import shared_dir  # noqa: E402
 from privslam_jax.detect.decode import decode_head  # noqa: E402
 from privslam_jax.detect.weights import load_ultralytics  # noqa: E402
-from privslam_jax.detect.yolov8 import YOLOv8Config, fuse_batchnorm, init_yolov8  # noqa: E402
+from privslam_jax.detect.yolov8 import TORCH_LAYER_NAMES, YOLOv8Config, fuse_batchnorm, init_yolov8  # noqa: E402
 
 SIZES = ((192, 640), (384, 1248), (640, 640))
 
@@ -69,6 +73,7 @@ def main() -> None:
     parser.add_argument("--weights", type=Path, default=default if default and default.exists() else None)
     parser.add_argument("--runs", type=int, default=40)
     parser.add_argument("--block", type=int, default=10, help="consecutive runs of one library before switching")
+    parser.add_argument("--layers", action="store_true", help="per-block breakdown at 384x1248 (needs ultralytics)")
     args = parser.parse_args()
 
     model = load_ultralytics(args.weights)[0] if args.weights else init_yolov8(YOLOv8Config())
@@ -112,6 +117,60 @@ def main() -> None:
         else:
             line += f" {'-':>14} | {'-':>5}"
         print(line)
+    if args.layers:
+        _per_layer(fuse_batchnorm(model), args.weights, args.runs)
+
+
+def _median_ms(fn, runs: int) -> float:
+    fn()
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times) * 1e3
+
+
+def _per_layer(fused, weights: Path | None, runs: int, size: tuple[int, int] = (384, 1248)) -> None:
+    """Time each top-level block alone, ours (jitted) and ultralytics', on the same inputs."""
+    try:
+        import torch
+        from ultralytics import YOLO
+    except Exception as err:  # noqa: BLE001 - optional reference
+        print(f"\n--layers skipped: ultralytics not importable ({type(err).__name__})")
+        return
+    if weights is None:
+        print("\n--layers skipped: needs --weights")
+        return
+    net = YOLO(str(weights)).model.float().eval().fuse(verbose=False)
+    seen: dict[int, tuple] = {}
+    hooks = [m.register_forward_pre_hook(lambda _m, a, i=i: seen.__setitem__(i, a)) for i, m in enumerate(net.model)]
+    x = np.random.default_rng(0).random((1, *size, 3), np.float32)
+    with torch.inference_mode():
+        net(torch.from_numpy(x.transpose(0, 3, 1, 2).copy()))
+    for hook in hooks:
+        hook.remove()
+    print(f"\nper block at {size[0]}x{size[1]} (median of {runs}, each block timed alone)")
+    print(f"{'layer':>5} {'ours':<10} | {'ours ms':>7} | {'ultralytics ms':>14} | {'ratio':>5}")
+    totals = [0.0, 0.0]
+    for index, name in TORCH_LAYER_NAMES.items():
+        args = seen[index]
+        to_nhwc = lambda t: jnp.asarray(t.numpy().transpose(0, 2, 3, 1))  # noqa: E731
+        xj = [to_nhwc(t) for t in args[0]] if isinstance(args[0], list) else to_nhwc(args[0])
+        graphdef, state = nnx.split(getattr(fused, name))
+        block = jax.jit(lambda st, v, g=graphdef: nnx.merge(g, st)(v))
+        layer = net.model[index]
+
+        def run_ref(layer=layer, args=args):
+            with torch.inference_mode():
+                layer(*args)
+
+        ours = _median_ms(lambda: jax.block_until_ready(block(state, xj)), runs)
+        ref = _median_ms(run_ref, runs)
+        totals[0] += ours
+        totals[1] += ref
+        print(f"{index:>5} {name:<10} | {ours:>7.2f} | {ref:>14.2f} | {ours / ref:>5.2f}")
+    print(f"{'sum':>5} {'':<10} | {totals[0]:>7.1f} | {totals[1]:>14.1f} | {totals[0] / totals[1]:>5.2f}")
 
 
 if __name__ == "__main__":
