@@ -1,11 +1,21 @@
-"""Table 4: trajectory accuracy of the SLAM on original frames (no privacy filter yet).
+"""Table 4: trajectory accuracy of the SLAM on original and on privacy-filtered frames.
 
 Goal: ATE (SE(3) and Sim(3) Umeyama alignment) and RPE of ``privslam_jax.slam`` against ground truth
 on KITTI ``seq1`` (monocular, the 51 shared frames) and on synthetic street sequences with turns
 (stereo, RGB-D, monocular), median and spread over runs.  The only randomness of the system is the
 order in which correspondences enter OpenCV's RANSAC (essential matrix, PnP), set by
 ``SlamConfig.seed``; ORB extraction itself is deterministic, so the "feature-extraction seeds" of
-issue 5 are these RANSAC seeds.  Privacy-filter variants join this table once the filters exist.
+issue 5 are these RANSAC seeds.
+
+Privacy variants (``--filters``, default ``edgeconnect,telea``): every sequence is first filtered as the
+edge device of the source paper would (``privslam filter --masks detect``): YOLOv8 with the privacy
+preset (person, bicycle, car, motorcycle, bus, truck; conf 0.4) finds the objects in each image,
+left and right camera separately, and the chosen method fills their dilated boxes.  KITTI frames are
+detected with the imported COCO ``yolov8n.pt`` from ``../shared`` (the embedded detector never saw
+a photo), synthetic frames with the embedded detector.  SLAM then runs on the filtered frames with
+the same RANSAC seeds, so each filtered run has a paired original run; the table reports the
+paired change of the headline ATE.  RGB-D is left out of the privacy rows: the filter acts on
+images, and the depth map would still carry the removed objects' shapes.
 
 - KITTI seq1: 5 runs with RANSAC seeds 0-4 on the same 51 frames.
 - Synthetic: 5 worlds, ``SynthConfig(num_frames=300, seed=w, stereo=True)`` for w = 0-4 (640×192,
@@ -15,18 +25,22 @@ issue 5 are these RANSAC seeds.  Privacy-filter variants join this table once th
   ``--synth-dir`` (default: a folder in the system temp dir, outside the repository).
 
 Command:
-    python experiments/table4_ate.py --jobs 2              # full: 5 + 15 runs
+    python experiments/table4_ate.py --jobs 2              # full: 5 + 15 original runs, 5 + 10 per filter
     python experiments/table4_ate.py --seeds 2 --frames 60 # quick look
     python experiments/table4_ate.py --skip-kitti          # synthetic rows only
     python experiments/table4_ate.py --jobs 2 --resume runs.jsonl  # keep finished runs across restarts
+    python experiments/table4_ate.py --filters edgeconnect,black     # other privacy variants (--filters '' : none)
 
 Runtime (2-core CPU): KITTI seq1 about 1 min per run after compilation; a synthetic 300-frame
 run about 2 min idle (stereo, RGB-D) to 3 min (mono), several times more on a loaded machine;
-rendering a 300-frame stereo world about 1 min.  ``--jobs 2`` runs two at a time.
+rendering a 300-frame stereo world about 1 min; filtering one (both cameras, detection + fill) about
+2.5 min.  ``--jobs 2`` runs two at a time; with it, the privacy rows of the two default filters took
+about 40 min (filtering included) on top of the original rows.
 
 Expected result (acceptance, issue 5 item 5): KITTI seq1 every frame tracked, Sim(3) ATE RMSE ≤ 0.10 m
 (COLMAP offline: 0.023 m); synthetic stereo SE(3) ATE ≤ 0.5 % of the path length, RGB-D ≤ 0.5 %,
-monocular Sim(3) ≤ 1 %.  Writes ``results/table4_ate.md``.
+monocular Sim(3) ≤ 1 %.  Writes ``results/table4_ate.md``.  Filtered frames are written next to the
+rendered worlds (``<synth-dir>/filtered/<method>/``) and reused when complete.
 """
 
 from __future__ import annotations
@@ -34,8 +48,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+import tempfile
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,6 +75,10 @@ class Config:
     """Frames of the synthetic sequence."""
     synth_modes: tuple[str, ...] = ("stereo", "rgbd", "mono")
     """Modes run on the synthetic sequence."""
+    filters: tuple[str, ...] = ("edgeconnect", "telea")
+    """Privacy filters (``privslam filter`` methods) whose filtered frames get their own rows."""
+    filter_modes: tuple[str, ...] = ("stereo", "mono")
+    """Synthetic modes run on filtered frames, of those in ``synth_modes`` (KITTI seq1 is mono)."""
     out: str = "results/table4_ate.md"
     """Markdown output."""
 
@@ -126,8 +146,22 @@ def _seq_job(path: str, mode: str, seed: int, n_frames: int | None) -> dict:
         return {"mode": mode, "seed": seed, "frames": n, "error": f"{type(err).__name__}: {err}"}
 
 
-Task = tuple[str, str, str, "int | None", int]
-"""``(row name, sequence path, mode, n_frames or None for all, RANSAC seed)``: one SLAM run."""
+class Task(NamedTuple):
+    """One SLAM run."""
+
+    row: str
+    """Row of the table (sequence set and filter)."""
+    path: str
+    """KITTI-layout sequence folder."""
+    mode: str
+    frames: int | None
+    """Frames to use (None: all)."""
+    seed: int
+    """RANSAC seed."""
+    filter: str = "none"
+    """Privacy filter the frames went through (``none``: original)."""
+    base: str = ""
+    """Row of the original frames this run is paired with."""
 
 
 def _kitti_tasks(cfg: Config) -> list[Task]:
@@ -139,27 +173,47 @@ def _kitti_tasks(cfg: Config) -> list[Task]:
         print("../shared is absent: skipping KITTI seq1")
         return []
     path = str(shared / "data/kitti_odometry/sequences/seq1")
-    return [("KITTI seq1 (51 frames)", path, "mono", None, s) for s in cfg.seeds]
+    name = "KITTI seq1 (51 frames)"
+    tasks = [Task(name, path, "mono", None, s, base=name) for s in cfg.seeds]
+    for method in cfg.filters:
+        out = Path(tempfile.gettempdir()) / "privslam_table4_filtered" / method / "kitti"
+        seq = _filtered(Path(path), out, method, shared / "weights/yolov8n.pt")
+        tasks += [Task(f"{name}, {method} filter", str(seq), "mono", None, s, method, name) for s in cfg.seeds]
+    return tasks
+
+
+def _filtered(sequence: Path, out: Path, method: str, detector: Path | None) -> Path:
+    """``sequence`` filtered with ``method`` on detections into ``out`` (reused when complete)."""
+    from privslam_jax.commands.filter import filter_sequence
+
+    done = out / "sequences" / sequence.name
+    if not (done / "instance_classes.json").is_file():  # written last: its presence means complete
+        print(f"filtering {sequence} with {method} into {out}", flush=True)
+        filter_sequence(sequence, out, method, "detect", detector)
+    return done
 
 
 def _synth_tasks(cfg: Config, synth_dir: str | None) -> list[Task]:
     """Render each synthetic world once (if needed); one run per world and mode."""
-    import tempfile
-
     from privslam_jax.commands.synth import write_kitti_sequence
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
     root = Path(synth_dir or Path(tempfile.gettempdir()) / f"privslam_table4_synth_{cfg.synth_frames}")
-    tasks = []
+    name = f"synthetic worlds {cfg.synth_worlds[0]}-{cfg.synth_worlds[-1]} ({cfg.synth_frames} frames)"
+    tasks, filtered = [], []
     for w in cfg.synth_worlds:
         out = root / f"world{w}"
         right = out / "sequences/synth/image_3"
         if not right.is_dir() or len(list(right.glob("*.png"))) < cfg.synth_frames:
             print(f"rendering synthetic world {w} into {out}", flush=True)
             write_kitti_sequence(make_sequence(SynthConfig(num_frames=cfg.synth_frames, seed=w, stereo=True)), str(out))
-        name = f"synthetic worlds {cfg.synth_worlds[0]}-{cfg.synth_worlds[-1]} ({cfg.synth_frames} frames)"
-        tasks += [(name, str(out / "sequences/synth"), mode, cfg.synth_frames, w) for mode in cfg.synth_modes]
-    return tasks
+        tasks += [Task(name, str(out / "sequences/synth"), mode, cfg.synth_frames, w, base=name)
+                  for mode in cfg.synth_modes]
+        for method in cfg.filters:
+            seq = _filtered(out / "sequences/synth", root / "filtered" / method / f"world{w}", method, None)
+            filtered += [Task(f"{name}, {method} filter", str(seq), mode, cfg.synth_frames, w, method, name)
+                         for mode in cfg.filter_modes if mode in cfg.synth_modes]
+    return tasks + filtered
 
 
 def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list[dict]:
@@ -172,7 +226,7 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
     import json
 
     def key(t: Task) -> str:
-        return f"{t[1]}|{t[2]}|{t[4]}|{t[3]}"
+        return f"{t.path}|{t.mode}|{t.seed}|{t.frames}"
 
     done: dict[str, dict] = {}
     if resume is not None and resume.is_file():
@@ -183,24 +237,26 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
         print(f"{len(done)} runs read from {resume}")
 
     def tag(task: Task, r: dict) -> dict:
-        r = {"row": task[0], "sequence": task[1], "key": key(task), **r}
-        print(f"{task[0]} {Path(task[1]).parent.parent.name} {task[2]} seed {task[4]}: {r}", flush=True)
+        r = {"row": task.row, "sequence": task.path, "key": key(task), **r, "filter": task.filter, "base": task.base}
+        print(f"{task.row} {Path(task.path).parent.parent.name} {task.mode} seed {task.seed}: {r}", flush=True)
         if resume is not None and "error" not in r:
             with resume.open("a") as f:
                 f.write(json.dumps(r) + "\n")
         return r
 
     todo = [i for i, t in enumerate(tasks) if key(t) not in done]
-    results = {i: {"row": t[0], **done[key(t)]} for i, t in enumerate(tasks) if key(t) in done}
+    results = {i: {**done[key(t)], "row": t.row, "filter": t.filter, "base": t.base}
+               for i, t in enumerate(tasks) if key(t) in done}
     if jobs <= 1:
         for i in todo:
-            results[i] = tag(tasks[i], _seq_job(tasks[i][1], tasks[i][2], tasks[i][4], tasks[i][3]))
+            t = tasks[i]
+            results[i] = tag(t, _seq_job(t.path, t.mode, t.seed, t.frames))
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            futs = {ex.submit(_seq_job, tasks[i][1], tasks[i][2], tasks[i][4], tasks[i][3]): i for i in todo}
+            futs = {ex.submit(_seq_job, tasks[i].path, tasks[i].mode, tasks[i].seed, tasks[i].frames): i for i in todo}
             for f in as_completed(futs):
                 results[futs[f]] = tag(tasks[futs[f]], f.result())
     return [results[i] for i in range(len(tasks))]
@@ -223,15 +279,43 @@ def _fmt(runs: list[dict], key: str, pct: bool = False, digits: int = 3) -> str:
     return s
 
 
+def _privacy_lines(rows: list[tuple[str, str, list[dict]]]) -> list[str]:
+    """Paired change of the headline ATE (filtered − original, same sequence, mode and RANSAC seed)."""
+    original = {(r["base"], mode, r["seed"]): r for _, mode, runs in rows for r in runs
+                if r["filter"] == "none" and "error" not in r}
+    lines = ["## Privacy filters: paired change of the headline ATE", "",
+             "Each filtered run minus the original run with the same sequence, mode and RANSAC seed "
+             "(SE(3) ATE for stereo, Sim(3) ATE for mono); median [min, max] over the pairs.", "",
+             "| sequence | mode | filter | pairs | tracked | ATE original | ATE filtered | Δ ATE (m) | Δ / original |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    found = False
+    for name, mode, runs in rows:
+        key = "ate_sim3" if mode == "mono" else "ate_se3"
+        pairs = [(original[(r["base"], mode, r["seed"])], r) for r in runs if r["filter"] != "none"
+                 and "error" not in r and (r["base"], mode, r["seed"]) in original]
+        if not pairs:
+            continue
+        found = True
+        o = np.asarray([a[key] for a, _ in pairs])
+        f = np.asarray([b[key] for _, b in pairs])
+        d, rel = f - o, 100 * (f - o) / o
+        lines.append(f"| {pairs[0][0]['row']} | {mode} | {pairs[0][1]['filter']} | {len(pairs)} | "
+                     f"{sum(b['tracked'] for _, b in pairs)} / {sum(b['frames'] for _, b in pairs)} | "
+                     f"{np.median(o):.3f} | {np.median(f):.3f} | {np.median(d):+.3f} [{d.min():+.3f}, {d.max():+.3f}] | "
+                     f"{np.median(rel):+.1f} % [{rel.min():+.1f}, {rel.max():+.1f}] |")
+    return lines + [""] if found else []
+
+
 def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path) -> str:
     lines = [
-        "# Table 4 — SLAM trajectory accuracy on original frames",
+        "# Table 4 — SLAM trajectory accuracy on original and privacy-filtered frames",
         "",
         "Written by `python experiments/table4_ate.py --jobs 2` (see its header).  Median [min, max] over "
         "the runs of a row (KITTI: RANSAC seeds 0-4 on one sequence; synthetic: worlds 0-4, one run each); "
         "ATE in metres (percentage: median over runs of ATE / that run's path length), RPE per frame "
         "(translation m, rotation deg; Sim(3)-aligned for mono).  The headline metric is SE(3) ATE for "
-        "stereo/RGB-D and Sim(3) ATE for mono.",
+        "stereo/RGB-D and Sim(3) ATE for mono.  Rows named '<method> filter' ran on frames whose detected "
+        "privacy objects were removed by that method (see the header of the script).",
         "",
         "| sequence | mode | runs | tracked | ATE SE(3) | ATE Sim(3) | RPE trans | RPE rot | keyframes | track ms (median) |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -255,18 +339,19 @@ def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path) -> str:
               "Acceptance (issue 5): KITTI seq1 Sim(3) ≤ 0.10 m; synthetic stereo SE(3) ≤ 0.5 % of the path, "
               "RGB-D ≤ 0.5 %, mono Sim(3) ≤ 1 %.  track ms: median per-frame extraction + tracking "
               "(no mapping) on the machine and load of the run.", "",
+              *_privacy_lines(rows),
               "## Every run", "",
-              "| sequence | mode | RANSAC seed | tracked | path m | ATE SE(3) m | ATE Sim(3) m | keyframes | events |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "| sequence | filter | mode | RANSAC seed | tracked | path m | ATE SE(3) m | ATE Sim(3) m | keyframes | events |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for _, mode, runs in rows:
         for r in runs:
             seq = Path(r["sequence"])
             seq = seq.parent.parent.name if seq.name == "synth" else seq.name  # <root>/world<w>/sequences/synth
             if "error" in r:
-                lines.append(f"| {seq} | {mode} | {r['seed']} | crashed: {r['error']} |" + " |" * 5)
+                lines.append(f"| {seq} | {r['filter']} | {mode} | {r['seed']} | crashed: {r['error']} |" + " |" * 5)
                 continue
-            lines.append(f"| {seq} | {mode} | {r['seed']} | {r['tracked']} / {r['frames']} | {r['path']:.1f} | "
-                         f"{r['ate_se3']:.3f} | {r['ate_sim3']:.3f} | {r['keyframes']} | {r['events']} |")
+            lines.append(f"| {seq} | {r['filter']} | {mode} | {r['seed']} | {r['tracked']} / {r['frames']} | "
+                         f"{r['path']:.1f} | {r['ate_se3']:.3f} | {r['ate_sim3']:.3f} | {r['keyframes']} | {r['events']} |")
     text = "\n".join(lines + [""])
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
@@ -281,6 +366,8 @@ def main() -> None:
     p.add_argument("--skip-kitti", action="store_true")
     p.add_argument("--skip-synth", action="store_true")
     p.add_argument("--modes", default=None, help="comma-separated synthetic modes (default stereo,rgbd,mono)")
+    p.add_argument("--filters", default=None,
+                   help="comma-separated privacy filters run as extra rows (default edgeconnect,telea; '' for none)")
     p.add_argument("--out", default=None)
     p.add_argument("--jobs", type=int, default=1, help="runs in parallel processes (default 1)")
     p.add_argument("--resume", type=Path, default=None,
@@ -293,6 +380,12 @@ def main() -> None:
         cfg = dataclasses.replace(cfg, synth_frames=a.frames)
     if a.modes is not None:
         cfg = dataclasses.replace(cfg, synth_modes=tuple(a.modes.split(",")))
+    if a.filters is not None:
+        from privslam_jax.inpaint.filter import FILTER_METHODS
+
+        cfg = dataclasses.replace(cfg, filters=tuple(f for f in a.filters.split(",") if f))
+        if unknown := set(cfg.filters) - set(FILTER_METHODS):
+            raise SystemExit(f"unknown filter(s) {sorted(unknown)}; choose from {', '.join(FILTER_METHODS)}")
     if a.out is not None:
         cfg = dataclasses.replace(cfg, out=a.out)
     tasks = [] if a.skip_kitti else _kitti_tasks(cfg)

@@ -1,0 +1,49 @@
+"""Table 4's privacy section: the paired ATE change against a direct numpy computation."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("table4_ate", ROOT / "experiments/table4_ate.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while the file runs
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(row, base, filt, mode, seed, se3, sim3):
+    return {"row": row, "base": base, "filter": filt, "mode": mode, "seed": seed, "sequence": f"/x/world{seed}/sequences/synth",
+            "frames": 10, "tracked": 10, "ate_se3": se3, "ate_sim3": sim3, "rpe_trans": 0.0, "rpe_rot": 0.0,
+            "path": 100.0, "keyframes": 3, "events": 1, "track_ms": 1.0}
+
+
+def test_privacy_section_pairs_runs_by_mode_and_seed(tmp_path):
+    t4 = _load()
+    rng = np.random.default_rng(0)
+    base = "synthetic worlds 0-3"
+    orig = {(m, s): rng.uniform(0.1, 2.0, 2) for m in ("stereo", "mono") for s in range(4)}
+    filt = {(m, s): rng.uniform(0.1, 2.0, 2) for m in ("stereo", "mono") for s in range(4)}
+    results = [_run(base, base, "none", m, s, *orig[m, s]) for m in ("stereo", "mono") for s in range(4)]
+    # filtered runs in another order, one seed missing its original (must not be paired), one crashed
+    results += [_run(f"{base}, telea filter", base, "telea", m, s, *filt[m, s]) for m in ("mono", "stereo") for s in (3, 1, 0, 2)]
+    results = [r for r in results if not (r["filter"] == "none" and r["mode"] == "mono" and r["seed"] == 2)]
+    results.append({"row": f"{base}, telea filter", "base": base, "filter": "telea", "mode": "stereo", "seed": 9,
+                    "sequence": "/x/world9/sequences/synth", "frames": 10, "error": "RuntimeError: boom"})
+    text = t4.write_markdown(t4._rows(results), tmp_path / "t4.md")
+    lines = {ln.split("|")[2].strip(): ln for ln in text.splitlines() if ln.startswith(f"| {base} |") and "telea" in ln}
+    for mode, k, seeds in (("stereo", 0, range(4)), ("mono", 1, (0, 1, 3))):
+        d = np.asarray([filt[mode, s][k] - orig[mode, s][k] for s in seeds])
+        cells = [c.strip() for c in lines[mode].split("|")[1:-1]]
+        assert cells[3] == str(len(seeds))
+        assert cells[7] == f"{np.median(d):+.3f} [{d.min():+.3f}, {d.max():+.3f}]"
+        rel = 100 * d / np.asarray([orig[mode, s][k] for s in seeds])
+        assert cells[8].startswith(f"{np.median(rel):+.1f} %")
+    assert "crashed: RuntimeError: boom" in text
