@@ -14,7 +14,8 @@ left and right camera separately, and the chosen method fills their dilated boxe
 detected with the imported COCO ``yolov8n.pt`` from ``../shared`` (the embedded detector never saw
 a photo), synthetic frames with the embedded detector.  SLAM then runs on the filtered frames with
 the same RANSAC seeds, so each filtered run has a paired original run; the table reports the
-paired change of the headline ATE.  RGB-D is left out of the privacy rows: the filter acts on
+paired change of the headline ATE.  Monocular runs are repeated with ``--ignore-masked``
+("masked features": no ORB feature where the filter filled in, whose texture is made up).  RGB-D is left out of the privacy rows: the filter acts on
 images, and the depth map would still carry the removed objects' shapes.
 
 - KITTI seq1: 5 runs with RANSAC seeds 0-4 on the same 51 frames.
@@ -79,6 +80,8 @@ class Config:
     """Privacy filters (``privslam filter`` methods) whose filtered frames get their own rows."""
     filter_modes: tuple[str, ...] = ("stereo", "mono")
     """Synthetic modes run on filtered frames, of those in ``synth_modes`` (KITTI seq1 is mono)."""
+    masked_modes: tuple[str, ...] = ("mono",)
+    """Modes also run on filtered frames with ``--ignore-masked`` (no features on the filled regions)."""
     out: str = "results/table4_ate.md"
     """Markdown output."""
 
@@ -87,13 +90,13 @@ def get_config() -> Config:
     return Config()
 
 
-def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.ndarray) -> dict:
+def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.ndarray, ignore=None) -> dict:
     """One SLAM run and its metrics (ATE, RPE, path length, tracked frames, timings)."""
     from privslam_jax.metrics.trajectory import ate, rpe
     from privslam_jax.slam.system import SlamConfig, run_slam
 
     t0 = time.perf_counter()
-    res = run_slam(frames, camera, SlamConfig(mode=mode, seed=seed), timestamps=timestamps)
+    res = run_slam(frames, camera, SlamConfig(mode=mode, seed=seed), timestamps=timestamps, ignore=ignore)
     wall = time.perf_counter() - t0
     T = np.asarray(res.trajectory.as_matrices(), np.float64)
     n = T.shape[0]
@@ -125,12 +128,13 @@ def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.nd
     }
 
 
-def _seq_job(path: str, mode: str, seed: int, n_frames: int | None) -> dict:
+def _seq_job(path: str, mode: str, seed: int, n_frames: int | None, ignore_masked: bool = False) -> dict:
     """One run on a KITTI-layout sequence folder (module-level: picklable for the process pool)."""
     from privslam_jax.data.kitti import KittiSequence
 
     seq = KittiSequence(path, stereo=mode == "stereo", grey=True)
     n = len(seq) if n_frames is None else min(len(seq), n_frames)
+    ignore = (seq.instance_ids(i) > 0 for i in range(n)) if ignore_masked else None
     if mode == "mono":
         frames = (seq.image(i) for i in range(n))
     elif mode == "stereo":
@@ -138,7 +142,7 @@ def _seq_job(path: str, mode: str, seed: int, n_frames: int | None) -> dict:
     else:
         frames = ((seq.image(i), seq[i].depth) for i in range(n))
     try:
-        return _run(frames, seq.camera, mode, seed, seq.timestamps[:n], seq.poses[:n])
+        return _run(frames, seq.camera, mode, seed, seq.timestamps[:n], seq.poses[:n], ignore)
     except Exception as err:  # noqa: BLE001 - a crashing run is a result: reported, the others go on
         import traceback
 
@@ -162,6 +166,8 @@ class Task(NamedTuple):
     """Privacy filter the frames went through (``none``: original)."""
     base: str = ""
     """Row of the original frames this run is paired with."""
+    ignore_masked: bool = False
+    """No features where the filter's ``masks/`` is nonzero (``privslam slam --ignore-masked``)."""
 
 
 def _kitti_tasks(cfg: Config) -> list[Task]:
@@ -179,6 +185,9 @@ def _kitti_tasks(cfg: Config) -> list[Task]:
         out = Path(tempfile.gettempdir()) / "privslam_table4_filtered" / method / "kitti"
         seq = _filtered(Path(path), out, method, shared / "weights/yolov8n.pt")
         tasks += [Task(f"{name}, {method} filter", str(seq), "mono", None, s, method, name) for s in cfg.seeds]
+        if "mono" in cfg.masked_modes:
+            tasks += [Task(f"{name}, {method} filter, masked features", str(seq), "mono", None, s, method, name, True)
+                      for s in cfg.seeds]
     return tasks
 
 
@@ -213,6 +222,9 @@ def _synth_tasks(cfg: Config, synth_dir: str | None) -> list[Task]:
             seq = _filtered(out / "sequences/synth", root / "filtered" / method / f"world{w}", method, None)
             filtered += [Task(f"{name}, {method} filter", str(seq), mode, cfg.synth_frames, w, method, name)
                          for mode in cfg.filter_modes if mode in cfg.synth_modes]
+            filtered += [Task(f"{name}, {method} filter, masked features", str(seq), mode, cfg.synth_frames, w,
+                              method, name, True)
+                         for mode in cfg.masked_modes if mode in cfg.filter_modes and mode in cfg.synth_modes]
     return tasks + filtered
 
 
@@ -226,7 +238,7 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
     import json
 
     def key(t: Task) -> str:
-        return f"{t.path}|{t.mode}|{t.seed}|{t.frames}"
+        return f"{t.path}|{t.mode}|{t.seed}|{t.frames}" + ("|masked" if t.ignore_masked else "")
 
     done: dict[str, dict] = {}
     if resume is not None and resume.is_file():
@@ -237,7 +249,8 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
         print(f"{len(done)} runs read from {resume}")
 
     def tag(task: Task, r: dict) -> dict:
-        r = {"row": task.row, "sequence": task.path, "key": key(task), **r, "filter": task.filter, "base": task.base}
+        r = {"row": task.row, "sequence": task.path, "key": key(task), **r, "filter": task.filter, "base": task.base,
+             "masked": task.ignore_masked}
         print(f"{task.row} {Path(task.path).parent.parent.name} {task.mode} seed {task.seed}: {r}", flush=True)
         if resume is not None and "error" not in r:
             with resume.open("a") as f:
@@ -245,18 +258,19 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
         return r
 
     todo = [i for i, t in enumerate(tasks) if key(t) not in done]
-    results = {i: {**done[key(t)], "row": t.row, "filter": t.filter, "base": t.base}
+    results = {i: {**done[key(t)], "row": t.row, "filter": t.filter, "base": t.base, "masked": t.ignore_masked}
                for i, t in enumerate(tasks) if key(t) in done}
     if jobs <= 1:
         for i in todo:
             t = tasks[i]
-            results[i] = tag(t, _seq_job(t.path, t.mode, t.seed, t.frames))
+            results[i] = tag(t, _seq_job(t.path, t.mode, t.seed, t.frames, t.ignore_masked))
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            futs = {ex.submit(_seq_job, tasks[i].path, tasks[i].mode, tasks[i].seed, tasks[i].frames): i for i in todo}
+            futs = {ex.submit(_seq_job, t.path, t.mode, t.seed, t.frames, t.ignore_masked): i
+                    for i, t in ((i, tasks[i]) for i in todo)}
             for f in as_completed(futs):
                 results[futs[f]] = tag(tasks[futs[f]], f.result())
     return [results[i] for i in range(len(tasks))]
@@ -279,6 +293,10 @@ def _fmt(runs: list[dict], key: str, pct: bool = False, digits: int = 3) -> str:
     return s
 
 
+def _filter_label(r: dict) -> str:
+    return r["filter"] + (", masked features" if r.get("masked") else "")
+
+
 def _privacy_lines(rows: list[tuple[str, str, list[dict]]]) -> list[str]:
     """Paired change of the headline ATE (filtered − original, same sequence, mode and RANSAC seed)."""
     original = {(r["base"], mode, r["seed"]): r for _, mode, runs in rows for r in runs
@@ -299,7 +317,7 @@ def _privacy_lines(rows: list[tuple[str, str, list[dict]]]) -> list[str]:
         o = np.asarray([a[key] for a, _ in pairs])
         f = np.asarray([b[key] for _, b in pairs])
         d, rel = f - o, 100 * (f - o) / o
-        lines.append(f"| {pairs[0][0]['row']} | {mode} | {pairs[0][1]['filter']} | {len(pairs)} | "
+        lines.append(f"| {pairs[0][0]['row']} | {mode} | {_filter_label(pairs[0][1])} | {len(pairs)} | "
                      f"{sum(b['tracked'] for _, b in pairs)} / {sum(b['frames'] for _, b in pairs)} | "
                      f"{np.median(o):.3f} | {np.median(f):.3f} | {np.median(d):+.3f} [{d.min():+.3f}, {d.max():+.3f}] | "
                      f"{np.median(rel):+.1f} % [{rel.min():+.1f}, {rel.max():+.1f}] |")
@@ -348,9 +366,9 @@ def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path) -> str:
             seq = Path(r["sequence"])
             seq = seq.parent.parent.name if seq.name == "synth" else seq.name  # <root>/world<w>/sequences/synth
             if "error" in r:
-                lines.append(f"| {seq} | {r['filter']} | {mode} | {r['seed']} | crashed: {r['error']} |" + " |" * 5)
+                lines.append(f"| {seq} | {_filter_label(r)} | {mode} | {r['seed']} | crashed: {r['error']} |" + " |" * 5)
                 continue
-            lines.append(f"| {seq} | {r['filter']} | {mode} | {r['seed']} | {r['tracked']} / {r['frames']} | "
+            lines.append(f"| {seq} | {_filter_label(r)} | {mode} | {r['seed']} | {r['tracked']} / {r['frames']} | "
                          f"{r['path']:.1f} | {r['ate_se3']:.3f} | {r['ate_sim3']:.3f} | {r['keyframes']} | {r['events']} |")
     text = "\n".join(lines + [""])
     path.parent.mkdir(parents=True, exist_ok=True)

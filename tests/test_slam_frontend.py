@@ -142,3 +142,35 @@ def test_bad_image_input():
     with pytest.raises(ValueError, match="grey uint8"):
         extract_orb(np.zeros((10, 10), np.float32))
     assert to_gray_u8(np.full((5, 6, 3), 1.0, np.float32)).max() == 255
+
+
+def test_ignore_mask_keeps_features_off_the_masked_region():
+    rng = np.random.default_rng(7)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (192, 400)).astype(np.float32), (0, 0), 1.2)
+    gray = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    cfg = OrbConfig(n_features=800)
+    plain = extract_orb(gray, cfg)
+    # an all-False mask is no mask
+    same = extract_orb(gray, cfg, np.zeros(gray.shape, bool))
+    np.testing.assert_array_equal(same.uv, plain.uv)
+    np.testing.assert_array_equal(same.desc, plain.desc)
+    ignore = np.zeros(gray.shape, bool)
+    ignore[:, 150:300] = True
+    masked = extract_orb(gray, cfg, ignore)
+    assert ((plain.uv[:, 0] > 160) & (plain.uv[:, 0] < 290)).sum() > 100  # the region has features
+    # OpenCV rescales the mask to each pyramid level: allow a few pixels at the border
+    inside = (masked.uv[:, 0] > 150 + 4) & (masked.uv[:, 0] < 300 - 4)
+    assert inside.sum() == 0, masked.uv[inside]
+    assert len(masked) > 0.5 * len(plain)
+    with pytest.raises(ValueError, match="ignore mask shape"):
+        extract_orb(gray, cfg, ignore[:, :10])
+
+
+def test_run_slam_needs_a_mask_per_frame():
+    from privslam_jax.slam.system import SlamConfig, run_slam
+    from privslam_jax.types import Camera
+
+    cam = Camera(fx=100.0, fy=100.0, cx=50.0, cy=40.0, width=100, height=80)
+    frames = [np.zeros((80, 100), np.uint8)] * 2
+    with pytest.raises(ValueError, match="fewer masks than frames"):
+        run_slam(frames, cam, SlamConfig(mode="mono"), ignore=[])

@@ -149,3 +149,21 @@ def test_cli_bad_arguments(tmp_path):
         _synth_main(["synth", "--out", str(tmp_path), "--frames", "0"])
     with pytest.raises(ValueError, match="--name"):
         _synth_main(["synth", "--out", str(tmp_path), "--name", "a/b"])
+
+
+def test_instance_ids_reader_and_slam_ignore_masked_needs_masks(tmp_path, capsys):
+    import shutil
+
+    from privslam_jax.cli import main
+    from privslam_jax.data.kitti import KittiSequence
+
+    _synth_main(["synth", "--out", str(tmp_path), "--frames", "2", "--width", "64", "--height", "32", "--name", "t",
+                 "--quiet"])
+    seq_dir = tmp_path / "sequences/t"
+    seq = KittiSequence(seq_dir)
+    np.testing.assert_array_equal(seq.instance_ids(1), seq[1].instance_ids)
+    shutil.rmtree(seq_dir / "masks")
+    with pytest.raises(FileNotFoundError, match="masks"):
+        KittiSequence(seq_dir).instance_ids(0)
+    assert main(["slam", str(seq_dir), "--ignore-masked", "--out", str(tmp_path / "out")]) == 2
+    assert "--ignore-masked needs" in capsys.readouterr().err

@@ -16,6 +16,9 @@ ground truth is read from ``…/poses/<id>.txt`` when present.  Writes into DIR:
   ``ate_over_time.png`` (per-frame position error after alignment; Sim(3) for mono, SE(3) else).
 
 Tracking loss is reported (metrics.json, stderr), never a crash.
+
+``--ignore-masked`` extracts no ORB feature where the sequence's ``masks/`` map is nonzero: on the
+output of ``privslam filter`` these are the regions it filled in, whose texture is made up.
 """
 
 from __future__ import annotations
@@ -44,6 +47,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="RANSAC shuffling seed (default 0)")
     p.add_argument("--max-frames", type=int, default=None, help="process only the first N frames")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--ignore-masked", action="store_true",
+                   help="extract no features where the sequence's masks/ is nonzero (on a `privslam filter` "
+                        "output: the filled-in objects)")
     p.set_defaults(func=run)
 
 
@@ -170,9 +176,14 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.slam.system import SlamConfig, run_slam
 
     seq, frames, n = load_sequence_frames(args.sequence, args.mode, args.max_frames)
+    ignore = None
+    if args.ignore_masked:
+        if not seq.has_extra("masks"):
+            raise FileNotFoundError(f"--ignore-masked needs {seq.path / 'masks'} (written by `privslam filter`)")
+        ignore = (seq.instance_ids(i) > 0 for i in range(n))
     cfg = SlamConfig(mode=args.mode, seed=args.seed)
     t0 = time.perf_counter()
-    result = run_slam(frames, seq.camera, cfg, timestamps=seq.timestamps[:n], progress=True, total=n)
+    result = run_slam(frames, seq.camera, cfg, timestamps=seq.timestamps[:n], progress=True, total=n, ignore=ignore)
     wall = time.perf_counter() - t0
     out = Path(args.out)
     metrics = write_outputs(out, result, seq.timestamps[:n], seq.poses, args.mode, wall, plots=not args.no_plots)

@@ -245,6 +245,14 @@ class KittiSequence:
             return read_image(self.right_dir / self.image_paths[i].name, grey=self.grey)
         return read_image(self.image_paths[i], grey=self.grey)
 
+    def instance_ids(self, i: int) -> np.ndarray:
+        """``(H, W)`` int32 ``masks/`` map of frame ``i`` only (0 = none; object ids from ``privslam synth``
+        or the removed objects of ``privslam filter``)."""
+        p = self._extra("masks", self._check(i))
+        if p is None:
+            raise FileNotFoundError(f"{self.path / 'masks'} does not exist")
+        return self._read_map(p).astype(np.int32)
+
     def _check(self, i: int) -> int:
         if not -len(self) <= i < len(self):
             raise IndexError(f"frame {i} out of range for {len(self)} frames")

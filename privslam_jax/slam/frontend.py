@@ -137,16 +137,23 @@ def _empty_features() -> Features:
     return Features(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 32), np.uint8))
 
 
-def extract_orb(gray: np.ndarray, config: OrbConfig = OrbConfig()) -> Features:
+def extract_orb(gray: np.ndarray, config: OrbConfig = OrbConfig(), ignore: np.ndarray | None = None) -> Features:
     """Grid-distributed ORB keypoints and descriptors of a grey uint8 image.
 
     Candidates are ranked inside their ``cell_size`` grid cell by Harris response; the kept set is
     the first ``n_features`` in the order (rank in cell, −response), i.e. round-robin over cells.
+    ``ignore`` (``(H, W)`` bool, True = no keypoint here, e.g. the filled-in regions of a privacy
+    filter) goes to OpenCV's detector as its mask (``mask = ~ignore``, rescaled per pyramid level).
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"extract_orb needs a grey uint8 HW image, got {gray.dtype} {gray.shape}")
+    mask = None
+    if ignore is not None:
+        if ignore.shape != gray.shape:
+            raise ValueError(f"ignore mask shape {ignore.shape} != image shape {gray.shape}")
+        mask = np.where(np.asarray(ignore, bool), 0, 255).astype(np.uint8)
     orb = _orb(config)
-    kps = orb.detect(gray, None)
+    kps = orb.detect(gray, mask)
     if not kps:
         return _empty_features()
     pts = np.array([k.pt for k in kps], np.float64)

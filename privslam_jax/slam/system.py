@@ -177,8 +177,12 @@ class Slam:
         return T @ self.map.keyframes[ref].T_c_w if ref >= 0 else T
 
     # ------------------------------------------------------------------ main entry
-    def track(self, image: np.ndarray, right: np.ndarray | None = None, depth: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
-        """Process the next frame; returns its ``T_w_c`` estimate and whether it was tracked."""
+    def track(self, image: np.ndarray, right: np.ndarray | None = None, depth: np.ndarray | None = None,
+              ignore: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+        """Process the next frame; returns its ``T_w_c`` estimate and whether it was tracked.
+
+        ``ignore``: ``(H, W)`` bool, no keypoint of the (left) image is extracted where it is True.
+        """
         idx = len(self.timings)
         tim: dict[str, float] = {}
         self.timings.append(tim)
@@ -186,7 +190,7 @@ class Slam:
         gray = to_gray_u8(image)
         if gray.shape != (self.camera.height, self.camera.width):
             raise ValueError(f"frame {idx}: image shape {gray.shape} != camera (height, width) {self.camera.shape}")
-        feats = extract_orb(gray, self.cfg.orb)
+        feats = extract_orb(gray, self.cfg.orb, ignore)
         tim["extract"] = time.perf_counter() - t0
         if self.cfg.mode == "stereo":
             if right is None:
@@ -457,11 +461,14 @@ def run_slam(
     timestamps: np.ndarray | None = None,
     progress: bool = False,
     total: int | None = None,
+    ignore: Iterable[np.ndarray | None] | None = None,
 ) -> SlamResult:
     """Run SLAM over ``frames`` and return every frame's pose, the keyframes and the map.
 
     ``frames`` yields images (mono), ``(left, right)`` pairs (stereo) or ``(image, depth)`` pairs
-    (RGB-D); images are float ``[0, 1]`` HWC RGB / HW grey or uint8 grey.
+    (RGB-D); images are float ``[0, 1]`` HWC RGB / HW grey or uint8 grey.  ``ignore`` yields, per
+    frame, a ``(H, W)`` bool mask of the left image where no keypoint is extracted (or None), e.g.
+    the regions a privacy filter filled in.
     """
     cv2.setRNGSeed(config.seed)
     slam = Slam(camera, config)
@@ -470,15 +477,19 @@ def run_slam(
         from tqdm import tqdm
 
         it = tqdm(frames, total=total, desc=f"slam ({config.mode})", unit="frame")
-    for item in it:
+    masks = iter(ignore) if ignore is not None else None
+    for k, item in enumerate(it):
+        mask = None
+        if masks is not None and (mask := next(masks, False)) is False:
+            raise ValueError(f"ignore has fewer masks than frames (none for frame {k})")
         if config.mode == "mono":
-            slam.track(item)
+            slam.track(item, ignore=mask)
         elif config.mode == "stereo":
             left, right = item
-            slam.track(left, right=right)
+            slam.track(left, right=right, ignore=mask)
         else:
             image, depth = item
-            slam.track(image, depth=depth)
+            slam.track(image, depth=depth, ignore=mask)
         if progress:
             it.set_postfix(kf=len(slam.map.keyframes), pts=int((~slam.map.bad).sum()),
                            lost=int(len(slam.tracked) - sum(slam.tracked)))
