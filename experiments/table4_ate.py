@@ -130,17 +130,10 @@ def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.nd
 
 def _seq_job(path: str, mode: str, seed: int, n_frames: int | None, ignore_masked: bool = False) -> dict:
     """One run on a KITTI-layout sequence folder (module-level: picklable for the process pool)."""
-    from privslam_jax.data.kitti import KittiSequence
+    from privslam_jax.commands.slam import load_sequence_frames, masked_regions
 
-    seq = KittiSequence(path, stereo=mode == "stereo", grey=True)
-    n = len(seq) if n_frames is None else min(len(seq), n_frames)
-    ignore = (seq.instance_ids(i) > 0 for i in range(n)) if ignore_masked else None
-    if mode == "mono":
-        frames = (seq.image(i) for i in range(n))
-    elif mode == "stereo":
-        frames = ((seq.image(i), seq.image(i, right=True)) for i in range(n))
-    else:
-        frames = ((seq.image(i), seq[i].depth) for i in range(n))
+    seq, frames, n = load_sequence_frames(path, mode, n_frames)
+    ignore = masked_regions(seq, n) if ignore_masked else None
     try:
         return _run(frames, seq.camera, mode, seed, seq.timestamps[:n], seq.poses[:n], ignore)
     except Exception as err:  # noqa: BLE001 - a crashing run is a result: reported, the others go on
@@ -168,6 +161,11 @@ class Task(NamedTuple):
     """Row of the original frames this run is paired with."""
     ignore_masked: bool = False
     """No features where the filter's ``masks/`` is nonzero (``privslam slam --ignore-masked``)."""
+
+
+def _job_args(t: Task) -> tuple:
+    """The arguments of :func:`_seq_job` for ``t``."""
+    return t.path, t.mode, t.seed, t.frames, t.ignore_masked
 
 
 def _kitti_tasks(cfg: Config) -> list[Task]:
@@ -262,15 +260,13 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
                for i, t in enumerate(tasks) if key(t) in done}
     if jobs <= 1:
         for i in todo:
-            t = tasks[i]
-            results[i] = tag(t, _seq_job(t.path, t.mode, t.seed, t.frames, t.ignore_masked))
+            results[i] = tag(tasks[i], _seq_job(*_job_args(tasks[i])))
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            futs = {ex.submit(_seq_job, t.path, t.mode, t.seed, t.frames, t.ignore_masked): i
-                    for i, t in ((i, tasks[i]) for i in todo)}
+            futs = {ex.submit(_seq_job, *_job_args(tasks[i])): i for i in todo}
             for f in as_completed(futs):
                 results[futs[f]] = tag(tasks[futs[f]], f.result())
     return [results[i] for i in range(len(tasks))]

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["add_parser", "run", "load_sequence_frames", "write_outputs"]
+__all__ = ["add_parser", "run", "load_sequence_frames", "masked_regions", "write_outputs"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -74,6 +74,13 @@ def load_sequence_frames(path: str | Path, mode: str, max_frames: int | None = N
                 yield seq.image(i), seq[i].depth
 
     return seq, frames(), n
+
+
+def masked_regions(seq, n: int):
+    """Per frame, the ``(H, W)`` bool map where ``seq``'s ``masks/`` is nonzero (``--ignore-masked``)."""
+    if not seq.has_extra("masks"):
+        raise FileNotFoundError(f"--ignore-masked needs {seq.path / 'masks'} (written by `privslam filter`)")
+    return (seq.instance_ids(i) > 0 for i in range(n))
 
 
 def _aligned(est: np.ndarray, gt: np.ndarray, sim3: bool) -> np.ndarray:
@@ -176,11 +183,7 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.slam.system import SlamConfig, run_slam
 
     seq, frames, n = load_sequence_frames(args.sequence, args.mode, args.max_frames)
-    ignore = None
-    if args.ignore_masked:
-        if not seq.has_extra("masks"):
-            raise FileNotFoundError(f"--ignore-masked needs {seq.path / 'masks'} (written by `privslam filter`)")
-        ignore = (seq.instance_ids(i) > 0 for i in range(n))
+    ignore = masked_regions(seq, n) if args.ignore_masked else None
     cfg = SlamConfig(mode=args.mode, seed=args.seed)
     t0 = time.perf_counter()
     result = run_slam(frames, seq.camera, cfg, timestamps=seq.timestamps[:n], progress=True, total=n, ignore=ignore)

@@ -479,8 +479,8 @@ def run_slam(
         it = tqdm(frames, total=total, desc=f"slam ({config.mode})", unit="frame")
     masks = iter(ignore) if ignore is not None else None
     for k, item in enumerate(it):
-        mask = None
-        if masks is not None and (mask := next(masks, False)) is False:
+        mask = next(masks, False) if masks is not None else None
+        if mask is False:
             raise ValueError(f"ignore has fewer masks than frames (none for frame {k})")
         if config.mode == "mono":
             slam.track(item, ignore=mask)
