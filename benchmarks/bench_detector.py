@@ -7,7 +7,8 @@ median / min latency of ``--runs`` runs after compilation. When ``torch`` and ``
 importable, the ultralytics model (same checkpoint, ``eval()``, ``torch.inference_mode``, fused
 Conv+BN as ultralytics' predictor uses it) is timed in the same run and the ratio
 ours/ultralytics is printed (goal ≤ 1.0 on CPU).  Ours is timed as ``Detector`` runs it, with
-BatchNorm folded into the convolutions (``fuse_batchnorm``, as ultralytics fuses).  The two are
+BatchNorm folded into the convolutions (``fuse_batchnorm``, as ultralytics fuses) and the stem on the
+native kernel (``privslam_jax.detect.rgb_stem``; ``PRIVSLAM_NATIVE=0`` times XLA's convolution instead).  The two are
 timed in alternating blocks of ``--block`` runs rather than run by run: torch's OpenMP workers
 keep spinning for a while after each call and slowed the XLA call right after it by ~40 % at
 192×640 (and XLA's threads the torch call), which measured the hand-over, not either library.
@@ -43,6 +44,7 @@ from flax import nnx  # noqa: E402
 
 from privslam_jax._shared import shared_dir  # noqa: E402
 from privslam_jax.detect.decode import decode_head  # noqa: E402
+from privslam_jax.detect.rgb_stem import native_stem_available  # noqa: E402
 from privslam_jax.detect.weights import load_ultralytics  # noqa: E402
 from privslam_jax.detect.yolov8 import TORCH_LAYER_NAMES, YOLOv8Config, fuse_batchnorm, init_yolov8  # noqa: E402
 
@@ -84,7 +86,7 @@ def main() -> None:
 
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}, XLA_FLAGS={os.environ.get('XLA_FLAGS')!r}, "
           f"load average {os.getloadavg()[0]:.1f}")
-    print(f"reference: {torch_info}")
+    print(f"stem: {'native kernel (rgb_stem.cc)' if native_stem_available() else 'XLA convolution'}; reference: {torch_info}")
     print(f"weights: {args.weights or 'random init'}; batch 1; median of {args.runs} runs after compile\n")
     header = f"{'input':>10} | {'compile s':>9} | {'ours ms (med/min)':>17} | {'ultralytics ms':>14} | {'ratio':>5}"
     print(header)
