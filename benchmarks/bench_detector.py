@@ -5,8 +5,9 @@ Command: ``python benchmarks/bench_detector.py [--weights PATH] [--runs 40] [--b
 Prints, per input size, the compile time of the jitted forward (network + DFL decode) and the
 median / min latency of ``--runs`` runs after compilation. When ``torch`` and ``ultralytics`` are
 importable, the ultralytics model (same checkpoint, ``eval()``, ``torch.inference_mode``, fused
-Conv+BN as ultralytics' predictor uses it) is timed in the same run and the ratio
-ours/ultralytics is printed (goal ≤ 1.0 on CPU).  Ours is timed as ``Detector`` runs it, with
+Conv+BN as ultralytics' predictor uses it, input tensor made before the clock starts) is timed in
+the same run and the ratio ours/ultralytics of the medians is printed (goal ≤ 1.0 on CPU), and
+that of the fastest runs, which a busy machine disturbs least.  Ours is timed as ``Detector`` runs it, with
 BatchNorm folded into the convolutions (``fuse_batchnorm``, as ultralytics fuses) and the stem on the
 native kernel (``privslam_jax.detect.rgb_stem``; ``PRIVSLAM_NATIVE=0`` times XLA's convolution instead).  The two are
 timed in alternating blocks of ``--block`` runs rather than run by run: torch's OpenMP workers
@@ -62,11 +63,16 @@ def _ultralytics_model(weights: Path | None):
     model = YOLO(str(weights)).model.float().eval()
     model = model.fuse(verbose=False) if hasattr(model, "fuse") else model
 
-    def run(x: np.ndarray):
-        with torch.inference_mode():
-            return model(torch.from_numpy(x.transpose(0, 3, 1, 2).copy()))
+    def prepare(x: np.ndarray):  # NHWC numpy -> NCHW tensor, outside the timed call (ours gets a device array)
+        tensor = torch.from_numpy(x.transpose(0, 3, 1, 2).copy())
 
-    return run, f"torch {torch.__version__}, {torch.get_num_threads()} threads"
+        def run():
+            with torch.inference_mode():
+                return model(tensor)
+
+        return run
+
+    return prepare, f"torch {torch.__version__}, {torch.get_num_threads()} threads"
 
 
 def main() -> None:
@@ -82,13 +88,14 @@ def main() -> None:
     model.eval()
     graphdef, state = nnx.split(fuse_batchnorm(model))
     forward = jax.jit(lambda st, x: decode_head(nnx.merge(graphdef, st)(x)))
-    torch_run, torch_info = _ultralytics_model(args.weights)
+    torch_prepare, torch_info = _ultralytics_model(args.weights)
 
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}, XLA_FLAGS={os.environ.get('XLA_FLAGS')!r}, "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"stem: {'native kernel (rgb_stem.cc)' if native_stem_available() else 'XLA convolution'}; reference: {torch_info}")
     print(f"weights: {args.weights or 'random init'}; batch 1; median of {args.runs} runs after compile\n")
-    header = f"{'input':>10} | {'compile s':>9} | {'ours ms (med/min)':>17} | {'ultralytics ms':>14} | {'ratio':>5}"
+    header = (f"{'input':>10} | {'compile s':>9} | {'ours ms (med/min)':>17} | {'ultralytics ms (med/min)':>24} | "
+              f"{'ratio':>5} | {'ratio of mins':>13}")
     print(header)
     print("-" * len(header))
     rng = np.random.default_rng(0)
@@ -100,8 +107,9 @@ def main() -> None:
         compile_s = time.perf_counter() - t0
         forward(state, xj).block_until_ready()
         ours, ref = [], []
+        torch_run = torch_prepare(x) if torch_prepare is not None else None
         if torch_run is not None:
-            torch_run(x)  # warm-up
+            torch_run()  # warm-up
         for start in range(0, args.runs, args.block):  # alternating blocks: both see the same load
             for _ in range(min(args.block, args.runs - start)):
                 t0 = time.perf_counter()
@@ -109,15 +117,15 @@ def main() -> None:
                 ours.append(time.perf_counter() - t0)
             for _ in range(min(args.block, args.runs - start) if torch_run is not None else 0):
                 t0 = time.perf_counter()
-                torch_run(x)
+                torch_run()
                 ref.append(time.perf_counter() - t0)
         med = statistics.median(ours) * 1e3
         line = f"{h:>4}x{w:<5} | {compile_s:>9.2f} | {med:>8.1f} / {min(ours) * 1e3:>6.1f} |"
         if ref:
             rmed = statistics.median(ref) * 1e3
-            line += f" {rmed:>14.1f} | {med / rmed:>5.2f}"
+            line += f" {rmed:>15.1f} / {min(ref) * 1e3:>6.1f} | {med / rmed:>5.2f} | {min(ours) / min(ref):>13.2f}"
         else:
-            line += f" {'-':>14} | {'-':>5}"
+            line += f" {'-':>24} | {'-':>5} | {'-':>13}"
         print(line)
     if args.layers:
         _per_layer(fuse_batchnorm(model), args.weights, args.runs)
