@@ -77,6 +77,15 @@ def test_nan_propagates_like_xla():
 
 
 @needs_native
+@pytest.mark.parametrize("pre_activation", [-1e30, -1e4, -100.0, -89.0, -88.0, 0.0, 30.0, 1e30])
+def test_extreme_pre_activations(pre_activation):
+    x = jnp.ones((1, 6, 6, 3), jnp.float32)
+    k = jnp.zeros((3, 3, 3, 16), jnp.float32)
+    b = jnp.full(16, pre_activation, jnp.float32)
+    np.testing.assert_allclose(np.asarray(rgb_stem(x, k, b)), np.asarray(rgb_stem_reference(x, k, b)), rtol=1e-6, atol=1e-30)
+
+
+@needs_native
 def test_fused_yolov8_uses_kernel_and_matches_unfused():
     model = init_yolov8(YOLOv8Config(num_classes=3, scale="n"), seed=2)
     model.eval()

@@ -49,8 +49,13 @@ inline void Pixel(const float* x, const float* w, const float* b, float* y, int6
       }
     }
   }
+  // SiLU a·σ(a) with σ from e = e^-|a| in (0, 1]: σ = 1 / (1 + e) for a ≥ 0, e / (1 + e) below.
+  // (a / (1 + e^-a) overflows to a / inf for a < -88.7, which fast-math's reciprocal turns into NaN.)
 #pragma omp simd
-  for (int o = 0; o < CO; ++o) y[o] = acc[o] / (1.f + std::exp(-acc[o]));
+  for (int o = 0; o < CO; ++o) {
+    const float a = acc[o], e = std::exp(-std::fabs(a));
+    y[o] = a * ((a >= 0.f ? 1.f : e) / (1.f + e));
+  }
 }
 
 // Output rows [r0, r1) of one image.
