@@ -6,13 +6,14 @@ Prints, per input size, the compile time of the jitted forward (network + DFL de
 median / min latency of ``--runs`` runs after compilation. When ``torch`` and ``ultralytics`` are
 importable, the ultralytics model (same checkpoint, ``eval()``, ``torch.inference_mode``, fused
 Conv+BN as ultralytics' predictor uses it, input tensor made before the clock starts) is timed in
-the same run and the ratio ours/ultralytics of the medians is printed (goal ≤ 1.0 on CPU), and
-that of the fastest runs, which a busy machine disturbs least.  Ours is timed as ``Detector`` runs it, with
-BatchNorm folded into the convolutions (``fuse_batchnorm``, as ultralytics fuses) and the stem on the
-native kernel (``privslam_jax.detect.rgb_stem``; ``PRIVSLAM_NATIVE=0`` times XLA's convolution instead).  The two are
-timed in alternating blocks of ``--block`` runs rather than run by run: torch's OpenMP workers
-keep spinning for a while after each call and slowed the XLA call right after it by ~40 % at
-192×640 (and XLA's threads the torch call), which measured the hand-over, not either library.
+the same run, and two ratios ours/ultralytics are printed: of the medians (goal ≤ 1.0 on CPU) and
+of the fastest runs, which a busy machine disturbs least.  Ours is timed as ``Detector`` runs it:
+BatchNorm folded into the convolutions (``fuse_batchnorm``, as ultralytics fuses) and the stem on
+the native kernel (``privslam_jax.detect.rgb_stem``; ``PRIVSLAM_NATIVE=0`` times XLA's convolution
+instead).  The two are timed in alternating blocks of ``--block`` runs rather than run by run:
+torch's OpenMP workers keep spinning for a while after each call and slowed the XLA call right
+after it by ~40 % at 192×640 (and XLA's threads the torch call), which measured the hand-over, not
+either library.
 Without weights a randomly initialised YOLOv8n (80 classes) is timed (same compute).
 
 ``--layers`` adds, for the 384×1248 input, the median latency of every top-level block (ultralytics

@@ -13,7 +13,7 @@ The kernel is compiled on first use with the machine's C++ compiler (``$CXX``, e
 ``$PRIVSLAM_CACHE`` (default ``~/.cache/privslam_jax``), keyed by source, jaxlib version, compiler
 and CPU; later processes load the cached library. Without a compiler, on a non-CPU backend, for
 other dtypes or channel counts, or with ``PRIVSLAM_NATIVE=0``, :func:`rgb_stem` is the plain XLA
-convolution (same function; a warning says why the native kernel is off).
+convolution (same function; when the build or load fails, a warning says why).
 
 Gradients: :func:`rgb_stem` has a custom VJP that differentiates the XLA formulation
 (:func:`rgb_stem_reference`), so training and end-to-end optimisation through a fused detector
