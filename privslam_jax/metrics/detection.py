@@ -38,6 +38,8 @@ __all__ = [
     "ap_per_class",
     "detection_metrics",
     "evaluate_yolo_folder",
+    "RecallCounts",
+    "privacy_recall",
 ]
 
 IOU_THRESHOLDS = np.linspace(0.5, 0.95, 10)
@@ -203,3 +205,83 @@ def evaluate_yolo_folder(detector, root: str | Path, split: str = "val", class_m
         evals.append(ImageEval(np.asarray(det.boxes), np.asarray(det.scores), np.asarray(det.class_ids),
                                cxcywhn_to_xyxy(boxes, w, h), np.asarray(cls)))
     return detection_metrics(evals)
+
+
+@dataclasses.dataclass(frozen=True)
+class RecallCounts:
+    """Object-level recall and false positives of a privacy detector over a set of images."""
+
+    found: int
+    """Required objects matched by a detection of an accepted class at IoU ≥ ``iou``."""
+    total: int
+    """Required objects."""
+    false_positives: int
+    """Detections on no labelled object (see :func:`privacy_recall`)."""
+    images: int
+    """Images evaluated."""
+    per_type: dict[str, tuple[int, int]]
+    """``type -> (found, total)`` per ground-truth type (e.g. KITTI ``Car``, ``Pedestrian``)."""
+
+    @property
+    def recall(self) -> float:
+        """``found / total`` (``nan`` without required objects)."""
+        return self.found / self.total if self.total else float("nan")
+
+    @property
+    def fp_per_image(self) -> float:
+        """False positives per image."""
+        return self.false_positives / self.images if self.images else float("nan")
+
+    def __add__(self, other: "RecallCounts") -> "RecallCounts":
+        per_type = dict(self.per_type)
+        for k, (f, t) in other.per_type.items():
+            f0, t0 = per_type.get(k, (0, 0))
+            per_type[k] = (f0 + f, t0 + t)
+        return RecallCounts(self.found + other.found, self.total + other.total,
+                            self.false_positives + other.false_positives, self.images + other.images, per_type)
+
+
+def privacy_recall(pred_boxes: np.ndarray, pred_scores: np.ndarray, pred_classes: np.ndarray,
+                   gt_boxes: np.ndarray, gt_accepted: Sequence[Sequence[int]], gt_types: Sequence[str] = (),
+                   ignored_boxes: np.ndarray | None = None, iou: float = 0.5) -> RecallCounts:
+    """Object recall and false positives of one image's detections (a privacy filter's view).
+
+    Detections are taken in descending confidence; each is matched to the unmatched required
+    object of highest IoU ≥ ``iou`` whose accepted classes contain the detection's class
+    (``gt_accepted[j]``, e.g. a KITTI Cyclist accepts person or bicycle). An unmatched detection
+    is a false positive unless it lies on a labelled object: IoU ≥ ``iou`` with any required
+    object (a duplicate or a class confusion still covers a real object) or with an
+    ``ignored_boxes`` entry, or at least half of its area inside an ignored box (KITTI DontCare
+    regions hold crowds of small objects).
+    """
+    pb = np.asarray(pred_boxes, np.float64).reshape(-1, 4)
+    ps = np.asarray(pred_scores, np.float64).reshape(-1)
+    pc = np.asarray(pred_classes).reshape(-1)
+    gb = np.asarray(gt_boxes, np.float64).reshape(-1, 4)
+    ib = np.zeros((0, 4)) if ignored_boxes is None else np.asarray(ignored_boxes, np.float64).reshape(-1, 4)
+    if not (len(pb) == len(ps) == len(pc)):
+        raise ValueError(f"prediction arrays differ in length: {len(pb)}, {len(ps)}, {len(pc)}")
+    if len(gt_accepted) != len(gb) or (gt_types and len(gt_types) != len(gb)):
+        raise ValueError("gt_accepted (and gt_types) need one entry per ground-truth box")
+    iou_g = _iou(pb, gb) if len(gb) else np.zeros((len(pb), 0))
+    iou_i = _iou(pb, ib) if len(ib) else np.zeros((len(pb), 0))
+    if len(ib):
+        lt = np.maximum(pb[:, None, :2], ib[None, :, :2])
+        rb = np.minimum(pb[:, None, 2:], ib[None, :, 2:])
+        inside = np.clip(rb - lt, 0, None).prod(-1) / np.maximum((pb[:, 2:] - pb[:, :2]).prod(-1), 1e-9)[:, None]
+    else:
+        inside = iou_i
+    matched = np.zeros(len(gb), bool)
+    fp = 0
+    for d in np.argsort(-ps, kind="stable"):
+        ok = np.array([int(pc[d]) in gt_accepted[j] for j in range(len(gb))], bool)
+        cand = np.where(ok & ~matched & (iou_g[d] >= iou), iou_g[d], -1.0)
+        if len(gb) and cand.max() >= iou:
+            matched[int(cand.argmax())] = True
+        elif not ((iou_g[d] >= iou).any() or (iou_i[d] >= iou).any() or (inside[d] >= 0.5).any()):
+            fp += 1
+    per_type: dict[str, tuple[int, int]] = {}
+    for j, t in enumerate(gt_types):
+        f0, t0 = per_type.get(t, (0, 0))
+        per_type[t] = (f0 + int(matched[j]), t0 + 1)
+    return RecallCounts(int(matched.sum()), len(gb), fp, 1, per_type)
