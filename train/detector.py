@@ -62,7 +62,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lrf", type=float, default=0.01)
     p.add_argument("--cos-lr", action="store_true")
     p.add_argument("--warmup-epochs", type=float, default=3.0)
+    p.add_argument("--warmup-bias-lr", type=float, default=0.1, help="bias lr at the start of warmup (use ~lr0 to fine-tune)")
     p.add_argument("--max-steps", type=int, default=None, help="stop after this many steps (schedule still spans --epochs)")
+    p.add_argument("--domain-rand", type=float, default=0.0, help="probability of photometric domain randomisation per image")
+    p.add_argument("--init-weights", default=None, help="fine-tune from this .npz checkpoint (same scale and classes)")
+    p.add_argument("--synth-randomize-camera", action="store_true",
+                   help="per seed random camera height, focal length and object density in the synthetic export")
     p.add_argument("--coco-names", action="store_true", help="store COCO class names in the checkpoint")
     p.add_argument("--synth-train-seeds", default=None, help="A-B: export synthetic seeds A..B as the train split first")
     p.add_argument("--synth-val-seeds", default=None, help="C-D: export synthetic seeds C..D as the val split first")
@@ -75,12 +80,14 @@ def main(argv: list[str] | None = None) -> int:
 
             from privslam_jax.data.synthetic import parse_seeds
 
-            n = export_synthetic_yolo(a.data, split, parse_seeds(seeds), a.synth_frames, a.synth_stride)
+            n = export_synthetic_yolo(a.data, split, parse_seeds(seeds), a.synth_frames, a.synth_stride,
+                                     randomize_camera=a.synth_randomize_camera)
             print(f"wrote {n} synthetic frames (seeds {seeds}) to {a.data}/images/{split}")
     cfg = TrainConfig(data=a.data, num_classes=a.num_classes, split=a.split, scale=a.scale, imgsz=a.imgsz, imgh=a.imgh,
                       batch_size=a.batch, epochs=a.epochs, lr0=a.lr0, lrf=a.lrf, cos_lr=a.cos_lr, momentum=a.momentum,
-                      warmup_epochs=a.warmup_epochs, optimizer=a.optimizer, seed=a.seed, ckpt_dir=a.ckpt_dir,
-                      ckpt_every=a.ckpt_every, max_steps=a.max_steps)
+                      warmup_epochs=a.warmup_epochs, warmup_bias_lr=a.warmup_bias_lr, optimizer=a.optimizer, seed=a.seed, ckpt_dir=a.ckpt_dir,
+                      ckpt_every=a.ckpt_every, max_steps=a.max_steps,
+                      domain_rand=a.domain_rand, init_weights=a.init_weights)
     result = train(cfg)
     names = None
     if a.coco_names:

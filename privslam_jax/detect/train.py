@@ -19,6 +19,8 @@ Recipe (ultralytics ``engine/trainer.py`` defaults; ``cfg/default.yaml``):
   e.g. 192×640 for KITTI-shaped frames — 3.3× less compute than 640² for the same pixels), random scale (±50 %) and translation (±10 %) with grey fill, HSV jitter
   (h 0.015, s 0.7, v 0.4), left-right flip (0.5); boxes transformed, clipped and filtered as
   ultralytics ``box_candidates`` (w, h > 2 px, area kept > 10 %, aspect < 100).
+* Optional photometric domain randomisation (``domain_rand``, :mod:`privslam_jax.detect.domain_rand`)
+  and fine-tuning from a checkpoint (``init_weights``).
 * Checkpoints: orbax ``CheckpointManager`` every ``ckpt_every`` steps (params, batch stats,
   optimiser state, EMA, step); ``train`` resumes from the latest one in ``ckpt_dir``. Data order
   and augmentation depend only on ``(seed, epoch, index)``, so a run killed and resumed ends with
@@ -42,6 +44,7 @@ import optax
 from flax import nnx
 from tqdm import tqdm
 
+from privslam_jax.detect.domain_rand import randomize_photometric
 from privslam_jax.detect.loss import LossConfig, detection_loss
 from privslam_jax.detect.predict import Letterboxed, letterbox
 from privslam_jax.detect.yolov8 import YOLOv8, YOLOv8Config, init_yolov8
@@ -97,6 +100,11 @@ class TrainConfig:
     """Random scale ± this fraction."""
     translate: float = 0.1
     """Random translation ± this fraction of the size."""
+    domain_rand: float = 0.0
+    """Probability of a photometric domain-randomisation draw per image
+    (:func:`privslam_jax.detect.domain_rand.randomize_photometric`; 0: off)."""
+    init_weights: str | None = None
+    """Start from this detector checkpoint (our ``.npz``; same scale and classes) instead of a random init."""
     max_boxes: int = 64
     """Ground-truth boxes per image kept (padding size)."""
     seed: int = 0
@@ -171,6 +179,8 @@ def augment(image: np.ndarray, boxes: np.ndarray, cfg: TrainConfig, rng: np.rand
     hsv[..., 1] = np.clip(hsv[..., 1] * hg[1], 0, 1)
     hsv[..., 2] = np.clip(hsv[..., 2] * hg[2], 0, 1)
     img = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+    if cfg.domain_rand and rng.random() < cfg.domain_rand:
+        img = randomize_photometric(img, rng)
     out = clipped[keep]
     if rng.random() < cfg.fliplr:
         img = img[:, ::-1]
@@ -288,6 +298,13 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
     total_steps = steps_per_epoch * cfg.epochs if cfg.max_steps is None else min(cfg.max_steps, steps_per_epoch * cfg.epochs)
 
     model = init_yolov8(YOLOv8Config(num_classes=cfg.num_classes, scale=cfg.scale), seed=cfg.seed)
+    if cfg.init_weights is not None:
+        from privslam_jax.detect.weights import load_detector
+
+        init, _ = load_detector(cfg.init_weights)
+        if init.config != model.config:
+            raise ValueError(f"init_weights {cfg.init_weights} is a {init.config}, the run trains a {model.config}")
+        model = init
     model.train()
     graphdef, params, stats = nnx.split(model, nnx.Param, ...)
     tx = _make_tx(nnx.to_pure_dict(params), cfg.weight_decay * cfg.batch_size / 64, cfg.optimizer)
