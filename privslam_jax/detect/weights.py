@@ -1,4 +1,4 @@
-"""Load ultralytics YOLOv8 checkpoints without torch and without running code from the file.
+"""Load ultralytics YOLOv8 / YOLO11 checkpoints without torch and without running code from the file.
 
 A torch ``.pt`` file is a zip archive ``<name>/data.pkl`` + ``<name>/data/<key>`` (raw little-endian
 tensor storages) + ``<name>/byteorder``. ``data.pkl`` is a pickle whose globals name torch and
@@ -18,8 +18,14 @@ Any other global (``os.system``, ``builtins.eval``, ``subprocess.*``…) raises
 ``GLOBAL``/``STACK_GLOBAL`` opcode is read, ahead of the ``REDUCE`` that would call it.
 Persistent ids ``("storage", type, key, location, numel)`` are mapped to the raw storages.
 
+The architecture and scale are read off the ``state_dict`` (:func:`detect_architecture`):
+YOLO11 has a ``C2PSA`` attention block at index 10 and its ``Detect`` at 23, YOLOv8 its ``Detect``
+at 22; the stem width and the number of blocks in layer 2 give the scale. Segmentation, pose, OBB,
+classification and end-to-end heads are refused with the reason.
+
 The same format is used for our own inference checkpoints (:func:`save_checkpoint`): an ``.npz``
-holding the ultralytics-style ``state_dict`` plus a JSON config, so one key mapping serves both.
+holding the ultralytics-style ``state_dict`` plus a JSON config (with ``"arch"``, ``"yolov8"``
+when absent), so one key mapping serves both.
 """
 
 from __future__ import annotations
@@ -36,7 +42,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from privslam_jax.detect.yolov8 import SCALES, TORCH_LAYER_NAMES, YOLOv8, YOLOv8Config, abstract_yolov8
+from privslam_jax.detect.yolo11 import YOLO11Config, abstract_yolo11
+from privslam_jax.detect.yolov8 import YOLOv8, YOLOv8Config, abstract_yolov8
 
 __all__ = [
     "UnsafeCheckpointError",
@@ -48,6 +55,7 @@ __all__ = [
     "model_state_dict",
     "load_ultralytics",
     "load_detector",
+    "detect_architecture",
     "save_checkpoint",
 ]
 
@@ -251,32 +259,66 @@ def ultralytics_state_dict(checkpoint: object) -> tuple[dict[str, np.ndarray], d
     return sd, names
 
 
-def _config_from_state_dict(sd: Mapping[str, np.ndarray]) -> YOLOv8Config:
+_ARCHS: dict[str, tuple[type[YOLOv8Config], int, int]] = {"yolov8": (YOLOv8Config, 22, 3), "yolo11": (YOLO11Config, 23, 2)}
+"""``arch -> (config class, index of Detect, yaml repeats of layer 2)``."""
+
+_OTHER_HEADS: dict[str, str] = {"proto": "a segmentation", "cv4": "a pose / OBB / segmentation", "cv5": "a segmentation",
+                                "one2one_cv2": "an end-to-end (NMS-free)", "linear": "a classification"}
+"""Sub-modules whose presence marks a head other than plain detection."""
+
+
+def detect_architecture(sd: Mapping[str, np.ndarray]) -> YOLOv8Config:
+    """The config (:class:`YOLOv8Config` or :class:`~privslam_jax.detect.yolo11.YOLO11Config`) of a ``state_dict``.
+
+    YOLO11 is recognised by its C2PSA attention (``model.10.m.0.attn``) and a ``Detect`` at index 23,
+    YOLOv8 by a ``Detect`` at 22; ``nc`` and ``reg_max`` come from the head's last 1×1 convs, the scale
+    from the stem width and the number of blocks in layer 2. Anything else raises ``ValueError``.
+    """
+    layers = {int(k.split(".")[1]) for k in sd if k.startswith("model.") and k.split(".")[1].isdigit()}
+    if not layers:
+        raise ValueError("state_dict has no ultralytics 'model.<i>.' keys")
+    last = max(layers)  # the head is the last module
+    for part, kind in _OTHER_HEADS.items():
+        if any(k.startswith(f"model.{last}.{part}.") for k in sd):
+            raise ValueError(f"state_dict has {kind} head (model.{last}.{part}); only detection models "
+                             "(YOLOv8 / YOLO11 Detect) are supported")
+    if any(k.startswith("model.10.m.0.attn.") for k in sd):
+        arch = "yolo11"
+    elif any(k.startswith("model.22.cv3.") for k in sd) and not any(k.startswith("model.23.") for k in sd):
+        arch = "yolov8"
+    else:
+        raise ValueError("state_dict is neither a YOLOv8 (Detect at model.22) nor a YOLO11 (C2PSA at model.10, "
+                         f"Detect at model.23) detector; its layers: {sorted(layers)}")
+    config_cls, head, repeats = _ARCHS[arch]
     try:
         width = sd["model.0.conv.weight"].shape[0]
-        depth = sum(1 for k in sd if k.startswith("model.2.m.") and k.endswith("cv1.conv.weight"))
-        nc = sd["model.22.cv3.0.2.weight"].shape[0]
-        reg_max = sd["model.22.cv2.0.2.weight"].shape[0] // 4
+        nc = sd[f"model.{head}.cv3.0.2.weight"].shape[0]
+        reg_max = sd[f"model.{head}.cv2.0.2.weight"].shape[0] // 4
     except KeyError as err:
-        raise ValueError(f"state_dict is not a YOLOv8 detector (missing {err})") from None
-    for scale in SCALES:
-        cfg = YOLOv8Config(num_classes=nc, scale=scale, reg_max=reg_max)
-        if cfg.channels(64) == width and cfg.depth(3) == depth:
+        raise ValueError(f"state_dict is not a {arch} detector (missing {err})") from None
+    depth = len({k.split(".")[3] for k in sd if k.startswith("model.2.m.")})
+    for scale in config_cls.scales:
+        cfg = config_cls(num_classes=nc, scale=scale, reg_max=reg_max)
+        if cfg.channels(64) == width and cfg.depth(repeats) == depth:
             return cfg
-    raise ValueError(f"no YOLOv8 scale has stem width {width} and depth {depth}")
+    raise ValueError(f"no {arch} scale has stem width {width} and {depth} blocks in layer 2")
 
 
 def _variable(model: YOLOv8, key: str) -> nnx.Variable | None:
     """The NNX variable for an ultralytics ``state_dict`` key (``None`` for skipped buffers)."""
     parts = key.split(".")
-    if len(parts) < 3 or parts[0] != "model" or not parts[1].isdigit() or int(parts[1]) not in TORCH_LAYER_NAMES:
+    names = model.torch_layer_names
+    if len(parts) < 3 or parts[0] != "model" or not parts[1].isdigit() or int(parts[1]) not in names:
         raise ValueError(f"unexpected state_dict key {key!r}")
     leaf = parts[-1]
     if leaf == "num_batches_tracked" or parts[2] == "dfl":
         return None
-    node: object = getattr(model, TORCH_LAYER_NAMES[int(parts[1])])
+    node: object = getattr(model, names[int(parts[1])])
     for p in parts[2:-1]:
-        node = node[int(p)] if p.isdigit() else getattr(node, p, None)
+        if p.isdigit():
+            node = node[int(p)] if isinstance(node, nnx.List) and int(p) < len(node) else None
+        else:
+            node = getattr(node, p, None)
         if node is None:
             raise ValueError(f"state_dict key {key!r} does not exist in the model")
     names = {"bn": {"weight": "scale", "bias": "bias", "running_mean": "mean", "running_var": "var"}}
@@ -319,7 +361,7 @@ def load_state_dict(model: YOLOv8, sd: Mapping[str, np.ndarray]) -> None:
 
 def model_state_dict(model: YOLOv8) -> dict[str, np.ndarray]:
     """The ultralytics-layout ``state_dict`` of ``model`` (inverse of :func:`load_state_dict`)."""
-    inverse = {v: k for k, v in TORCH_LAYER_NAMES.items()}
+    inverse = {v: k for k, v in model.torch_layer_names.items()}
     bn = {"scale": "weight", "bias": "bias", "mean": "running_mean", "var": "running_var"}
     out: dict[str, np.ndarray] = {}
     for path, var in nnx.iter_graph(model):
@@ -335,19 +377,24 @@ def model_state_dict(model: YOLOv8) -> dict[str, np.ndarray]:
             arr = arr.transpose(3, 2, 0, 1)
         out[".".join(["model", str(inverse[parts[0]]), *parts[1:-1], leaf])] = arr
     r = model.config.reg_max
-    out["model.22.dfl.conv.weight"] = np.arange(r, dtype=np.float32).reshape(1, r, 1, 1)
+    out[f"model.{inverse['detect']}.dfl.conv.weight"] = np.arange(r, dtype=np.float32).reshape(1, r, 1, 1)
     return out
 
 
-def _build(sd: Mapping[str, np.ndarray]) -> YOLOv8:
-    model = abstract_yolov8(_config_from_state_dict(sd))
+def _build(sd: Mapping[str, np.ndarray], arch: str | None = None) -> YOLOv8:
+    config = detect_architecture(sd)
+    if arch is not None and arch != config.arch:
+        raise ValueError(f"checkpoint says arch {arch!r} but its weights are a {config.arch} network")
+    model = abstract_yolo11(config) if isinstance(config, YOLO11Config) else abstract_yolov8(config)
     load_state_dict(model, sd)
     model.eval()
     return model
 
 
 def load_ultralytics(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:
-    """Build a :class:`YOLOv8` (eval mode) from an ultralytics ``.pt`` (zip or unzipped folder).
+    """Build a YOLOv8 or :class:`~privslam_jax.detect.yolo11.YOLO11` (eval mode) from an ultralytics ``.pt``.
+
+    Zip file or unzipped folder; architecture and scale from :func:`detect_architecture`.
 
     Returns the model and the class names stored in the checkpoint.
     """
@@ -359,6 +406,7 @@ def save_checkpoint(model: YOLOv8, path: str | Path, names: Mapping[int, str] | 
     """Write an inference checkpoint ``.npz``: ultralytics-layout arrays plus config and names."""
     meta = {"num_classes": model.config.num_classes, "scale": model.config.scale,
             "reg_max": model.config.reg_max, "names": {str(k): v for k, v in (names or {}).items()}}
+    meta["arch"] = model.config.arch
     np.savez(path, __meta__=np.array(json.dumps(meta)), **model_state_dict(model))
 
 
@@ -373,5 +421,5 @@ def load_detector(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:
                 raise ValueError(f"{path} is not a privslam detector checkpoint (no __meta__)")
             meta = json.loads(str(data["__meta__"]))
             sd = {k: data[k] for k in data.files if k != "__meta__"}
-        return _build(sd), {int(k): v for k, v in meta.get("names", {}).items()}
+        return _build(sd, meta.get("arch", "yolov8")), {int(k): v for k, v in meta.get("names", {}).items()}
     return load_ultralytics(path)

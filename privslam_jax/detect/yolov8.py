@@ -3,8 +3,9 @@
 Architecture (Jocher et al., ultralytics ``cfg/models/v8/yolov8.yaml``; module definitions in
 ``ultralytics/nn/modules/{conv,block,head}.py``):
 
-* ``Conv`` = Conv2d (no bias, padding ``k // 2``) → BatchNorm (eps 1e-3, torch momentum 0.03)
-  → SiLU.
+* ``Conv`` = Conv2d (no bias, padding ``k // 2``, ``g`` groups) → BatchNorm (eps 1e-3, torch
+  momentum 0.03) → SiLU (or no activation, ``act=False``); ``DWConv`` = Conv with ``gcd(c1, c2)``
+  groups (depthwise).
 * ``C2f(c1, c2, n, shortcut)``: ``cv1`` 1×1 to ``2c`` (``c = c2 / 2``), split in two halves
   ``y0, y1``; ``n`` Bottlenecks (two 3×3 Convs, residual when ``shortcut`` and ``c_in == c_out``)
   applied in a chain to the last half, every intermediate kept; ``cv2`` 1×1 over the
@@ -18,6 +19,8 @@ Architecture (Jocher et al., ultralytics ``cfg/models/v8/yolov8.yaml``; module d
   (Conv 3×3 → Conv 3×3 → Conv2d 1×1 to ``4·reg_max``, with bias) and a class branch (same with
   ``nc`` outputs), ``c2 = max(16, ch_P3 / 4, 4·reg_max)``, ``c3 = max(ch_P3, min(nc, 100))``.
   DFL (``reg_max = 16``) is a fixed softmax expectation, see :mod:`privslam_jax.detect.decode`.
+  ``legacy=False`` (YOLO11, :mod:`privslam_jax.detect.yolo11`): the class branch is
+  ``[DWConv 3×3, Conv 1×1 → c3]``, ``[DWConv 3×3, Conv 1×1]``, Conv2d 1×1 to ``nc``.
 * Scales ``(depth, width, max_channels)``: n (0.33, 0.25, 1024), s (0.33, 0.50, 1024),
   m (0.67, 0.75, 768), l (1.0, 1.0, 512), x (1.0, 1.25, 512); channels
   ``ceil(min(c, max_ch)·width / 8)·8``, repeats ``max(round(n·depth), 1)``.
@@ -36,6 +39,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -46,7 +51,7 @@ from jaxtyping import Array, Float
 from privslam_jax.detect.rgb_stem import rgb_stem
 
 __all__ = ["YOLOv8", "YOLOv8Config", "SCALES", "TORCH_LAYER_NAMES", "count_parameters", "init_yolov8", "abstract_yolov8",
-           "fuse_batchnorm"]
+           "fuse_batchnorm", "Conv", "DWConv", "Bottleneck", "C2f", "SPPF", "Detect"]
 
 SCALES: dict[str, tuple[float, float, int]] = {
     "n": (0.33, 0.25, 1024),
@@ -77,6 +82,11 @@ _torch_kernel_init = nnx.initializers.variance_scaling(1.0 / 3.0, "fan_in", "uni
 class YOLOv8Config:
     """Network hyper-parameters."""
 
+    scales: ClassVar[dict[str, tuple[float, float, int]]] = SCALES
+    """The family's ``scale -> (depth, width, max channels)`` table."""
+    arch: ClassVar[str] = "yolov8"
+    """Architecture name recorded in checkpoints."""
+
     num_classes: int = 80
     """Number of object classes ``nc`` (COCO: 80)."""
     scale: str = "n"
@@ -85,49 +95,58 @@ class YOLOv8Config:
     """DFL bins per box side."""
 
     def __post_init__(self) -> None:
-        if self.scale not in SCALES:
-            raise ValueError(f"unknown YOLOv8 scale {self.scale!r}; choose one of {sorted(SCALES)}")
+        if self.scale not in self.scales:
+            raise ValueError(f"unknown {self.arch} scale {self.scale!r}; choose one of {sorted(self.scales)}")
         if self.num_classes < 1:
             raise ValueError(f"num_classes must be >= 1, got {self.num_classes}")
 
     def channels(self, c: int) -> int:
         """Scaled channel count ``ceil(min(c, max_ch)·width / 8)·8``."""
-        _, width, max_ch = SCALES[self.scale]
+        _, width, max_ch = self.scales[self.scale]
         return int(math.ceil(min(c, max_ch) * width / 8) * 8)
 
     def depth(self, n: int) -> int:
         """Scaled repeat count ``max(round(n·depth), 1)``."""
-        return max(round(n * SCALES[self.scale][0]), 1) if n > 1 else n
+        return max(round(n * self.scales[self.scale][0]), 1) if n > 1 else n
 
 
 class Conv(nnx.Module):
-    """Conv2d (no bias, padding ``k//2``) → BatchNorm(eps 1e-3) → SiLU.
+    """Conv2d (no bias, padding ``k//2``, ``g`` groups) → BatchNorm(eps 1e-3) → SiLU (if ``act``).
 
     Once BatchNorm is folded (:func:`fuse_batchnorm`), the 3×3/2 convolution of a 3-channel image
     (the stem) runs :func:`privslam_jax.detect.rgb_stem.rgb_stem`, a native CPU kernel 3× faster than
     XLA's convolution there, differentiable through the XLA formulation.
     """
 
-    def __init__(self, c1: int, c2: int, k: int = 1, s: int = 1, *, rngs: nnx.Rngs):
+    def __init__(self, c1: int, c2: int, k: int = 1, s: int = 1, g: int = 1, act: bool = True, *, rngs: nnx.Rngs):
         p = k // 2
+        self.act = act
         self.conv = nnx.Conv(c1, c2, (k, k), (s, s), padding=((p, p), (p, p)), use_bias=False,
-                             kernel_init=_torch_kernel_init, rngs=rngs)
+                             feature_group_count=g, kernel_init=_torch_kernel_init, rngs=rngs)
         # flax momentum m: ra <- m·ra + (1-m)·batch; torch momentum 0.03 -> m = 0.97.
         self.bn = nnx.BatchNorm(c2, epsilon=1e-3, momentum=0.97, rngs=rngs)
 
     def __call__(self, x: Float[Array, "B H W C"]) -> Float[Array, "B h w D"]:
-        if self.bn is None and x.shape[-1] == 3 and self.conv.kernel_size == (3, 3) and self.conv.strides == (2, 2):
+        if (self.bn is None and self.act and x.shape[-1] == 3 and self.conv.kernel_size == (3, 3)
+                and self.conv.strides == (2, 2) and self.conv.feature_group_count == 1):
             return rgb_stem(x, self.conv.kernel[...], self.conv.bias[...])  # folded stem: native CPU kernel
         y = self.conv(x)
-        return jax.nn.silu(y if self.bn is None else self.bn(y))  # bn is None once folded
+        y = y if self.bn is None else self.bn(y)  # bn is None once folded
+        return jax.nn.silu(y) if self.act else y
+
+
+def DWConv(c1: int, c2: int, k: int = 1, s: int = 1, act: bool = True, *, rngs: nnx.Rngs) -> Conv:  # noqa: N802
+    """Depthwise :class:`Conv` (ultralytics ``DWConv``): ``gcd(c1, c2)`` groups."""
+    return Conv(c1, c2, k, s, math.gcd(c1, c2), act, rngs=rngs)
 
 
 class Bottleneck(nnx.Module):
-    """Two 3×3 Convs with an optional residual connection."""
+    """Two 3×3 Convs (hidden width ``int(c2·e)``) with an optional residual connection."""
 
-    def __init__(self, c1: int, c2: int, shortcut: bool, *, rngs: nnx.Rngs):
-        self.cv1 = Conv(c1, c2, 3, rngs=rngs)  # e = 1.0 inside C2f
-        self.cv2 = Conv(c2, c2, 3, rngs=rngs)
+    def __init__(self, c1: int, c2: int, shortcut: bool, e: float = 1.0, *, rngs: nnx.Rngs):
+        c_ = int(c2 * e)  # e = 1.0 inside C2f and C3k, 0.5 inside C3k2
+        self.cv1 = Conv(c1, c_, 3, rngs=rngs)
+        self.cv2 = Conv(c_, c2, 3, rngs=rngs)
         self.add = shortcut and c1 == c2
 
     def __call__(self, x: Float[Array, "B H W C"]) -> Float[Array, "B H W C"]:
@@ -136,10 +155,10 @@ class Bottleneck(nnx.Module):
 
 
 class C2f(nnx.Module):
-    """CSP bottleneck with two convolutions, keeping every intermediate (YOLOv8)."""
+    """CSP bottleneck with two convolutions, keeping every intermediate (hidden ``c = int(c2·e)``)."""
 
-    def __init__(self, c1: int, c2: int, n: int, shortcut: bool, *, rngs: nnx.Rngs):
-        self.c = c2 // 2
+    def __init__(self, c1: int, c2: int, n: int, shortcut: bool, e: float = 0.5, *, rngs: nnx.Rngs):
+        self.c = int(c2 * e)
         self.cv1 = Conv(c1, 2 * self.c, 1, rngs=rngs)
         self.cv2 = Conv((2 + n) * self.c, c2, 1, rngs=rngs)
         self.m = nnx.List([Bottleneck(self.c, self.c, shortcut, rngs=rngs) for _ in range(n)])
@@ -174,33 +193,40 @@ class SPPF(nnx.Module):
         return self.cv2(jnp.concatenate(ys, axis=-1))
 
 
-class Detect(nnx.Module):
-    """Decoupled head: per level a box (DFL logits) and a class branch, concatenated."""
+def _run(layers: Iterable, x: Array) -> Array:
+    """Apply a (possibly nested) list of layers in order, like a torch ``nn.Sequential``."""
+    for layer in layers:
+        x = _run(layer, x) if isinstance(layer, nnx.List) else layer(x)
+    return x
 
-    def __init__(self, nc: int, ch: tuple[int, ...], reg_max: int, *, rngs: nnx.Rngs):
+
+class Detect(nnx.Module):
+    """Decoupled head: per level a box (DFL logits) and a class branch, concatenated.
+
+    ``legacy`` (YOLOv8) class branch: two 3×3 Convs; otherwise (YOLO11) two
+    ``[DWConv 3×3, Conv 1×1]`` pairs; both end in a 1×1 Conv2d with bias.
+    """
+
+    def __init__(self, nc: int, ch: tuple[int, ...], reg_max: int, legacy: bool = True, *, rngs: nnx.Rngs):
         self.nc, self.reg_max = nc, reg_max
         c2 = max(16, ch[0] // 4, reg_max * 4)
         c3 = max(ch[0], min(nc, 100))
 
-        def branch(c_in: int, c_mid: int, c_out: int, bias: float):
+        def branch(c_in: int, c_mid: int, c_out: int, bias: float, dw: bool = False):
             last = nnx.Conv(c_mid, c_out, (1, 1), kernel_init=_torch_kernel_init,
                             bias_init=nnx.initializers.constant(bias), rngs=rngs)
+            if dw:
+                return nnx.List([nnx.List([DWConv(c_in, c_in, 3, rngs=rngs), Conv(c_in, c_mid, 1, rngs=rngs)]),
+                                 nnx.List([DWConv(c_mid, c_mid, 3, rngs=rngs), Conv(c_mid, c_mid, 1, rngs=rngs)]), last])
             return nnx.List([Conv(c_in, c_mid, 3, rngs=rngs), Conv(c_mid, c_mid, 3, rngs=rngs), last])
 
         # ultralytics Detect.bias_init: box bias 1.0, class bias log(5 / nc / (640 / s)^2).
         self.cv2 = nnx.List([branch(c, c2, 4 * reg_max, 1.0) for c in ch])
-        self.cv3 = nnx.List([branch(c, c3, nc, math.log(5 / nc / (640 / s) ** 2)) for c, s in zip(ch, STRIDES)])
+        self.cv3 = nnx.List([branch(c, c3, nc, math.log(5 / nc / (640 / s) ** 2), not legacy)
+                             for c, s in zip(ch, STRIDES)])
 
     def __call__(self, feats: list[Array]) -> list[Array]:
-        out = []
-        for x, box, cls in zip(feats, self.cv2, self.cv3):
-            b, c = x, x
-            for layer in box:
-                b = layer(b)
-            for layer in cls:
-                c = layer(c)
-            out.append(jnp.concatenate([b, c], axis=-1))
-        return out
+        return [jnp.concatenate([_run(box, x), _run(cls, x)], axis=-1) for x, box, cls in zip(feats, self.cv2, self.cv3)]
 
 
 def _upsample2(x: Float[Array, "B H W C"]) -> Float[Array, "B h w C"]:
@@ -215,6 +241,9 @@ class YOLOv8(nnx.Module):
     :func:`privslam_jax.detect.decode.decode_head`. Call ``model.eval()`` for inference
     (BatchNorm running statistics) and ``model.train()`` for training.
     """
+
+    torch_layer_names: ClassVar[dict[int, str]] = TORCH_LAYER_NAMES
+    """ultralytics ``model.model[i]`` index → attribute (the importer's key map)."""
 
     def __init__(self, config: YOLOv8Config = YOLOv8Config(), *, rngs: nnx.Rngs):
         self.config = config
@@ -290,7 +319,12 @@ def abstract_yolov8(config: YOLOv8Config = YOLOv8Config()) -> YOLOv8:
 
 
 def init_yolov8(config: YOLOv8Config = YOLOv8Config(), seed: int = 0) -> YOLOv8:
-    """A randomly initialised :class:`YOLOv8`, initialised on the host with numpy.
+    """A randomly initialised :class:`YOLOv8`, initialised on the host with numpy (:func:`host_init`)."""
+    return host_init(abstract_yolov8(config), seed)
+
+
+def host_init(model: YOLOv8, seed: int = 0) -> YOLOv8:
+    """Fill the variables of an abstract ``model`` (YOLOv8 or YOLO11) with a random init, on the host.
 
     Same distributions as the module constructor (torch defaults: kernels and biases
     ``U(±1/√fan_in)``, BatchNorm ``γ = 1, β = 0``, running mean 0 and variance 1) plus
@@ -298,7 +332,7 @@ def init_yolov8(config: YOLOv8Config = YOLOv8Config(), seed: int = 0) -> YOLOv8:
     Eager NNX initialisation dispatches one small XLA program per layer shape (tens of seconds on
     a busy 2-core CPU); this takes well under a second.
     """
-    model = abstract_yolov8(config)
+    config = model.config
     rng = np.random.default_rng(seed)
 
     def put(var: nnx.Variable, value: np.ndarray) -> None:
@@ -318,6 +352,6 @@ def init_yolov8(config: YOLOv8Config = YOLOv8Config(), seed: int = 0) -> YOLOv8:
             put(node.mean, np.zeros(c))
             put(node.var, np.ones(c))
     for box, cls, s in zip(model.detect.cv2, model.detect.cv3, STRIDES):
-        put(box[2].bias, np.ones(box[2].bias.get_value().shape))
-        put(cls[2].bias, np.full(cls[2].bias.get_value().shape, math.log(5 / config.num_classes / (640 / s) ** 2)))
+        put(box[-1].bias, np.ones(box[-1].bias.get_value().shape))
+        put(cls[-1].bias, np.full(cls[-1].bias.get_value().shape, math.log(5 / config.num_classes / (640 / s) ** 2)))
     return model
