@@ -18,6 +18,7 @@ every class with ultralytics' default 0.25.
 from __future__ import annotations
 
 import argparse
+import sys
 import json
 from pathlib import Path
 
@@ -97,6 +98,12 @@ def run(args: argparse.Namespace) -> int:
     config = DetectorConfig(imgsz=args.imgsz, conf=conf, iou=args.iou, classes=classes)
     root, files = list_images(args.source)
     detector = Detector.from_weights(weights, config)
+    if detector.domain == "synthetic":
+        rr = detector.meta["card"].get("real_recall")
+        measured = f" (recall on real KITTI frames {rr['recall']:.2f}, {rr['command']})" if isinstance(rr, dict) else ""
+        print(f"note: {weights} was trained on the synthetic world only{measured}; on real images it misses most "
+              "people and vehicles: use --weights with a detector trained on real images (docs/detector.md)",
+              file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     records = []

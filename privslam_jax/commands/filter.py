@@ -4,7 +4,9 @@
 
 ``--method`` defaults to ``edgeconnect`` with the embedded checkpoint.
 
-Reads ``SEQUENCE`` (``…/sequences/<name>``, :class:`~privslam_jax.data.kitti.KittiSequence`) and
+``SEQUENCE`` is a plain folder of frames (any image format, name order = time order; written as
+PNG to ``DIR/<name>/`` with ``masks/`` and the report beside them) or a KITTI-layout sequence.
+Reads a KITTI-layout ``SEQUENCE`` (``…/sequences/<name>``, :class:`~privslam_jax.data.kitti.KittiSequence`) and
 writes ``DIR/sequences/<name>/`` with the filtered left images in the same image folder
 (``image_2`` or ``image_0``; grey sequences stay grey), ``calib.txt`` and ``times.txt`` copied,
 ``DIR/poses/<name>.txt`` copied when present, and ``masks/%06d.png``: uint16, pixel = the id of the
@@ -14,8 +16,13 @@ detections); with ground-truth masks, which exist for the left camera only, it i
 
 ``--masks gt`` uses the synthetic ground-truth instance masks (``masks/`` written by
 ``privslam synth``); ``detect`` runs the YOLOv8 detector (``--detector``: an ultralytics ``.pt``
-or our ``.npz``; default ``../shared/weights/yolov8n.pt`` when present) with the paper's privacy
-preset (person, bicycle, car, motorcycle, bus, truck at confidence 0.4) and masks its boxes.
+or our ``.npz``; default the embedded detector) with the paper's privacy preset (person, bicycle,
+car, motorcycle, bus, truck at confidence 0.4, ``--conf`` to change it) and masks its boxes;
+``--tta`` and ``--propagate K`` raise recall (:mod:`privslam_jax.detect.temporal`). A detector
+whose checkpoint says it was trained on the synthetic world only is refused on a sequence that
+is not a ``privslam synth`` output (one without ``background/``) unless
+``--allow-domain-mismatch`` is given, and then the run warns. ``filter_report.json`` records the
+detector, its domain and the masks per frame.
 ``--method edgeconnect`` uses ``--model`` (an ``Inpainter`` ``.npz`` from ``train/inpaint.py``) or,
 without it, the embedded CPU-preset checkpoint (``privslam_jax/assets/inpainter_cpu16.npz``, see
 ``docs/model_card_inpainter.md``).
@@ -27,12 +34,13 @@ import argparse
 import json
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
-__all__ = ["add_parser", "run", "filter_sequence"]
+__all__ = ["add_parser", "run", "filter_sequence", "check_detector_domain"]
 
 
 def add_parser(subparsers) -> None:
@@ -50,6 +58,14 @@ def add_parser(subparsers) -> None:
     p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz; default: the embedded detector)")
     p.add_argument("--model", type=Path, default=None,
                    help="EdgeConnect Inpainter .npz (for edgeconnect; default: the embedded checkpoint)")
+    p.add_argument("--conf", type=float, default=None,
+                   help="detection threshold (default 0.4, the paper's; lower it for recall, see docs/detector.md)")
+    p.add_argument("--propagate", type=int, default=0, metavar="K",
+                   help="carry each detection to the K frames before and after it by optical flow, where the "
+                        "detector missed the object (recall-first; docs/detector.md)")
+    p.add_argument("--tta", action="store_true", help="test-time augmentation: letterbox 640 and 960, each also flipped")
+    p.add_argument("--allow-domain-mismatch", action="store_true",
+                   help="run a detector trained on the synthetic world only on real frames anyway (it misses most objects)")
     p.add_argument("--dilation", type=int, default=4, help="mask dilation in pixels (default 4)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise baselines")
     p.set_defaults(func=run)
@@ -67,6 +83,62 @@ def _label_map(masks: np.ndarray, ids: list[int], shape: tuple[int, int]) -> np.
     return out
 
 
+class _FrameFolder:
+    """A plain folder of frames (any image format, name order = time order) seen as a sequence."""
+
+    def __init__(self, path: Path):
+        from privslam_jax.data.images import read_raw
+        from privslam_jax.data.yolo import IMAGE_SUFFIXES
+
+        if not path.is_dir():
+            raise FileNotFoundError(f"sequence folder not found: {path}")
+        self.path, self.name, self.poses_path, self.instance_classes = path, path.name, None, {}
+        self.image_paths = sorted(q for q in path.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES)
+        if not self.image_paths:
+            raise ValueError(f"{path} holds no image_2/ or image_0/ folder (KITTI layout) and no image files")
+        first = read_raw(self.image_paths[0])
+        self.grey = first.ndim == 2 or first.shape[-1] == 1
+        self.camera = SimpleNamespace(height=first.shape[0], width=first.shape[1])
+
+    def __len__(self) -> int:
+        return len(self.image_paths)
+
+    def has_extra(self, name: str) -> bool:
+        return False
+
+
+def _consecutive_runs(stems: list[str]) -> list[tuple[int, int]]:
+    """``[start, stop)`` index ranges of consecutively numbered frames (one run if names are not numbers)."""
+    if not all(t.isdigit() for t in stems):
+        return [(0, len(stems))]
+    ids = [int(t) for t in stems]
+    cuts = [0] + [i for i in range(1, len(ids)) if ids[i] != ids[i - 1] + 1] + [len(ids)]
+    return list(zip(cuts[:-1], cuts[1:]))
+
+
+def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch: bool) -> str | None:
+    """Refuse (or, when allowed, warn about) a synthetic-only detector on frames that are not synthetic.
+
+    Returns the warning text when the run goes ahead with a mismatch, ``None`` otherwise. A privacy
+    filter that quietly finds nothing on frames it does not understand leaks every object in them.
+    """
+    import warnings
+
+    if detector.domain != "synthetic" or sequence_is_synthetic:
+        return None
+    recall = detector.meta.get("card", {}).get("real_recall")
+    measured = (f"measured recall on real KITTI frames: {recall['recall']:.2f} with "
+                f"{recall['fp_per_image']:.2f} false positives per image ({recall.get('command', '')})"
+                if isinstance(recall, dict) else "its recall on real frames has not been measured")
+    text = (f"the detector {detector.meta.get('path', '')} was trained on the synthetic world only ({measured}); "
+            "on these frames, which are not a `privslam synth` output, it leaves most people and vehicles visible")
+    if not allow_mismatch:
+        raise ValueError(text + ". Give --detector a detector trained on real images (e.g. an ultralytics .pt you "
+                         "own, see docs/detector.md), or pass --allow-domain-mismatch to run anyway.")
+    warnings.warn("PRIVACY WARNING: " + text, UserWarning, stacklevel=2)
+    return text
+
+
 def filter_sequence(
     sequence: Path,
     out: Path,
@@ -77,8 +149,19 @@ def filter_sequence(
     dilation: int = 4,
     seed: int = 0,
     progress: bool = True,
+    conf: float | None = None,
+    propagate: int = 0,
+    tta: bool = False,
+    allow_domain_mismatch: bool = False,
 ) -> Path:
-    """Filter every frame of ``sequence`` into ``out``; returns the written sequence folder."""
+    """Filter every frame of ``sequence`` into ``out``; returns the written sequence folder.
+
+    With ``masks_source="detect"`` the detector runs over the whole sequence first (threshold
+    ``conf``, default the paper's 0.4; ``tta`` and ``propagate`` as in
+    :func:`privslam_jax.detect.temporal.detect_sequence`), then each frame is filled.
+    ``filter_report.json`` records the detector (and its training domain), the settings and the
+    number of masks per frame by origin (detected, promoted low-score, propagated).
+    """
     from privslam_jax.data.images import read_image
     from privslam_jax.data.kitti import KittiSequence
     from privslam_jax.inpaint.filter import FILTER_METHODS, Inpainter, filter_frame
@@ -86,30 +169,74 @@ def filter_sequence(
 
     if method not in FILTER_METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {', '.join(FILTER_METHODS)}")
-    seq = KittiSequence(sequence)
+    sequence = Path(sequence)
+    kitti = any((sequence / d).is_dir() for d in ("image_2", "image_0"))
+    seq = KittiSequence(sequence) if kitti else _FrameFolder(sequence)
     if masks_source is None:
         masks_source = "gt" if seq.has_extra("masks") else "detect"
     if masks_source == "gt" and not seq.has_extra("masks"):
         raise FileNotFoundError(f"--masks gt needs {seq.path / 'masks'} (written by `privslam synth`)")
+    if len(seq) == 0:
+        raise ValueError(f"{sequence} has no frames")
+    report: dict = {"method": method, "masks": masks_source, "frames": len(seq)}
+    detector = None
+    if masks_source == "detect":
+        import dataclasses
+
+        from privslam_jax.detect import PRIVACY_PRESET, Detector
+        from privslam_jax.detect.temporal import PropagationConfig
+
+        preset = PRIVACY_PRESET if conf is None else dataclasses.replace(PRIVACY_PRESET, conf=conf)
+        detector = Detector.embedded(preset) if detector_path is None else Detector.from_weights(detector_path, preset)
+        # privslam synth writes background/ (the object-free render); nothing else does.
+        mismatch = check_detector_domain(detector, seq.has_extra("background"), allow_domain_mismatch)
+        propagation = (PropagationConfig(window=propagate, high_conf=preset.conf, low_conf=min(0.1, preset.conf))
+                       if propagate else None)
+        report["detector"] = {"weights": detector.meta.get("path", "embedded"), "domain": detector.domain,
+                              "card": detector.meta.get("card", {}), "conf": preset.conf, "propagate": propagate,
+                              "tta": tta, "domain_warning": mismatch}
     inpainter = None
     if method == "edgeconnect":
         inpainter = Inpainter.embedded() if model_path is None else Inpainter.load(model_path)
-    detector = None
-    if masks_source == "detect":
-        from privslam_jax.detect import PRIVACY_PRESET, Detector
-
-        detector = Detector.embedded() if detector_path is None else Detector.from_weights(detector_path, PRIVACY_PRESET)
 
     out = Path(out)
-    out_dir = out / "sequences" / seq.name
+    out_dir = out / "sequences" / seq.name if kitti else out / seq.name
     if out_dir.resolve() == seq.path.resolve():
         raise ValueError("--out must differ from the input sequence's root (it would overwrite the originals)")
-    grey_input = seq.left_dir.name in ("image_0", "image_1")
-    right_dir = seq.path / {"image_2": "image_3", "image_0": "image_1"}[seq.left_dir.name]
-    do_right = masks_source == "detect" and right_dir.is_dir()
-    folders = [(seq.left_dir, out_dir / seq.left_dir.name)]
-    if do_right:
-        folders.append((right_dir, out_dir / right_dir.name))
+    stems = [p.stem for p in seq.image_paths]
+    if kitti:
+        grey_input = seq.left_dir.name in ("image_0", "image_1")
+        right_dir = seq.path / {"image_2": "image_3", "image_0": "image_1"}[seq.left_dir.name]
+        folders = [([seq.left_dir / f"{t}.png" for t in stems], out_dir / seq.left_dir.name)]
+        if masks_source == "detect" and right_dir.is_dir():
+            folders.append(([right_dir / f"{t}.png" for t in stems], out_dir / right_dir.name))
+    else:
+        grey_input = seq.grey
+        folders = [(seq.image_paths, out_dir)]
+
+    detections = {}
+    if detector is not None:
+        from privslam_jax.detect.temporal import detect_sequence
+
+        runs = _consecutive_runs(stems)
+        report["runs"] = [[stems[a], stems[b - 1]] for a, b in runs]
+        for k, (src, _) in enumerate(folders):
+            dets_k, origins_k = [], []
+            for a, b in runs:  # propagation never crosses a gap in the frame numbers
+                images = [read_image(path) for path in src[a:b]]
+                for path, im in zip(src[a:b], images):  # refuse before anything is written
+                    if im.shape[:2] != (seq.camera.height, seq.camera.width):
+                        raise ValueError(f"{path} is {im.shape[1]}x{im.shape[0]}, the sequence's frames are "
+                                         f"{seq.camera.width}x{seq.camera.height}")
+                d, o = detect_sequence(detector, images, propagation, (1.0, 1.5) if tta else None)
+                dets_k, origins_k = dets_k + d, origins_k + o
+            detections[k] = (dets_k, origins_k)
+        dets, origins = detections[0]
+        counts = np.array([np.bincount(o, minlength=3) for o in origins]).reshape(-1, 3)
+        report["masks_per_frame"] = {"detected": counts[:, 0].tolist(), "promoted": counts[:, 1].tolist(),
+                                     "propagated": counts[:, 2].tolist()}
+        report["frames_without_masks"] = int((counts.sum(1) == 0).sum())
+
     for _, d in folders:
         d.mkdir(parents=True, exist_ok=True)
     (out_dir / "masks").mkdir(exist_ok=True)
@@ -124,9 +251,11 @@ def filter_sequence(
     next_id = 1  # detections get sequence-unique ids
     h, w = seq.camera.height, seq.camera.width
     for i in tqdm(range(len(seq)), desc=f"filter {method}", disable=not progress):
-        stem = seq.image_paths[i].stem
+        stem = stems[i]
         for k, (src, dst) in enumerate(folders):
-            image = read_image(src / f"{stem}.png")
+            image = read_image(src[i])
+            if image.shape[:2] != (h, w):
+                raise ValueError(f"{src[i]} is {image.shape[1]}x{image.shape[0]}, the sequence's frames are {w}x{h}")
             if masks_source == "gt":
                 frame = seq[i]
                 ids = sorted(int(x) for x in np.unique(frame.instance_ids[frame.instance_ids > 0]))
@@ -134,7 +263,7 @@ def filter_sequence(
                 for j in ids:
                     classes[j] = int(seq.instance_classes.get(j, -1))
             else:
-                det = detector.detect([image])[0]
+                det = detections[k][0][i]
                 boxes = np.asarray(det.boxes, np.float64).reshape(-1, 4)
                 masks = boxes_to_masks(boxes, h, w, dilation)
                 ids = list(range(next_id, next_id + len(boxes)))
@@ -146,11 +275,23 @@ def filter_sequence(
             if k == 0:
                 cv2.imwrite(str(out_dir / "masks" / f"{stem}.png"), _label_map(masks, ids, (h, w)))
     (out_dir / "instance_classes.json").write_text(json.dumps({str(k): v for k, v in sorted(classes.items())}))
+    (out_dir / "filter_report.json").write_text(json.dumps(report, indent=1))
     return out_dir
 
 
 def run(args: argparse.Namespace) -> int:
     out_dir = filter_sequence(args.sequence, args.out, args.method, args.masks, args.detector, args.model,
-                              args.dilation, args.seed)
+                              args.dilation, args.seed, conf=args.conf, propagate=args.propagate, tta=args.tta,
+                              allow_domain_mismatch=args.allow_domain_mismatch)
+    report = json.loads((out_dir / "filter_report.json").read_text())
+    det = report.get("detector")
+    if det is not None:
+        per = report["masks_per_frame"]
+        print(f"detector {det['weights']} (trained on {det['domain']} frames), conf {det['conf']}, "
+              f"propagate {det['propagate']}, tta {det['tta']}: {sum(per['detected'])} detected, "
+              f"{sum(per['promoted'])} promoted, {sum(per['propagated'])} propagated masks; "
+              f"{report['frames_without_masks']} of {report['frames']} frames without any mask")
+        if det["domain_warning"]:
+            print("PRIVACY WARNING: " + det["domain_warning"])
     print(f"filtered sequence written to {out_dir}")
     return 0

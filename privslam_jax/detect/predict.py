@@ -150,15 +150,19 @@ def letterbox(image: np.ndarray, imgsz: int = 640, mode: str = "rect") -> Letter
 class Detector:
     """YOLOv8 + config: ``detect(images) -> list[Detections]`` in original pixels.
 
-    ``names`` maps class ids to names (from the checkpoint). The forward pass is jitted once per
+    ``names`` maps class ids to names (from the checkpoint); ``meta`` is the checkpoint's record of
+    what the network was trained on (``meta["domain"]``: ``"synthetic"``, ``"real"`` or
+    ``"unknown"``) and what was measured on it (``meta["card"]``, e.g. its recall on real frames;
+    :func:`privslam_jax.detect.weights.checkpoint_meta`). The forward pass is jitted once per
     ``(batch, H, W)``; ``compile_count`` reports how many programs were compiled so far.
     """
 
     def __init__(self, model: YOLOv8, config: DetectorConfig = DetectorConfig(),
-                 names: Mapping[int, str] | None = None):
+                 names: Mapping[int, str] | None = None, meta: Mapping | None = None):
         model.eval()
         self.model, self.config = model, config
         self.names = dict(names) if names else {i: str(i) for i in range(model.config.num_classes)}
+        self.meta = {"domain": "unknown", "card": {}, **dict(meta or {})}
         graphdef, state = nnx.split(fuse_batchnorm(model))  # inference: BatchNorm folded (as ultralytics)
         self._state = state
         reg_max = model.config.reg_max
@@ -171,10 +175,11 @@ class Detector:
     @classmethod
     def from_weights(cls, path: str | Path, config: DetectorConfig = DetectorConfig()) -> "Detector":
         """Load an ultralytics ``.pt`` (file or unzipped folder) or our ``.npz`` checkpoint."""
-        from privslam_jax.detect.weights import load_detector
+        from privslam_jax.detect.weights import checkpoint_meta, load_detector
 
         model, names = load_detector(path)
-        return cls(model, config, names)
+        meta = checkpoint_meta(path)
+        return cls(model, config, names, {"domain": meta["domain"], "card": meta["card"], "path": str(path)})
 
     @classmethod
     def embedded(cls, config: DetectorConfig = PRIVACY_PRESET) -> "Detector":
@@ -194,6 +199,11 @@ class Detector:
         other.__dict__.update(self.__dict__)
         other.config = config
         return other
+
+    @property
+    def domain(self) -> str:
+        """What the network was trained on: ``"synthetic"``, ``"real"`` or ``"unknown"``."""
+        return str(self.meta["domain"])
 
     @property
     def compile_count(self) -> int:

@@ -57,6 +57,8 @@ __all__ = [
     "load_detector",
     "detect_architecture",
     "save_checkpoint",
+    "checkpoint_meta",
+    "DOMAINS",
 ]
 
 STUB_MODULE_PREFIXES: tuple[str, ...] = ("ultralytics.nn.", "torch.nn.modules.")
@@ -402,12 +404,48 @@ def load_ultralytics(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:
     return _build(sd), names
 
 
-def save_checkpoint(model: YOLOv8, path: str | Path, names: Mapping[int, str] | None = None) -> None:
-    """Write an inference checkpoint ``.npz``: ultralytics-layout arrays plus config and names."""
+DOMAINS: tuple[str, ...] = ("synthetic", "real", "unknown")
+"""What a detector was trained on: the synthetic world only, real photographs, or not recorded."""
+
+
+def save_checkpoint(model: YOLOv8, path: str | Path, names: Mapping[int, str] | None = None,
+                    domain: str = "unknown", card: Mapping[str, object] | None = None) -> None:
+    """Write an inference checkpoint ``.npz``: ultralytics-layout arrays plus config and names.
+
+    ``domain`` (one of :data:`DOMAINS`) records what the network was trained on; ``card`` holds
+    measured facts worth carrying with the weights (e.g. ``{"real_recall": {...}}``, see
+    :func:`checkpoint_meta`). Both are JSON in the ``__meta__`` entry.
+    """
+    if domain not in DOMAINS:
+        raise ValueError(f"domain must be one of {DOMAINS}, got {domain!r}")
     meta = {"num_classes": model.config.num_classes, "scale": model.config.scale,
-            "reg_max": model.config.reg_max, "names": {str(k): v for k, v in (names or {}).items()}}
+            "reg_max": model.config.reg_max, "names": {str(k): v for k, v in (names or {}).items()},
+            "domain": domain, "card": dict(card or {})}
     meta["arch"] = model.config.arch
     np.savez(path, __meta__=np.array(json.dumps(meta)), **model_state_dict(model))
+
+
+def checkpoint_meta(path: str | Path) -> dict:
+    """``{"domain", "card", ...}`` of a detector checkpoint, without loading the weights.
+
+    Our ``.npz`` files carry them (files written before the field existed read as
+    ``"unknown"``); an ultralytics ``.pt`` is a network trained on real photographs (COCO or the
+    user's own data): ``{"domain": "real", "card": {"source": "ultralytics"}}``.
+    """
+    path = Path(path)
+    if path.suffix != ".npz":
+        return {"domain": "real", "card": {"source": "ultralytics"}}
+    if not path.is_file():
+        raise FileNotFoundError(f"detector weights not found: {path}")
+    with np.load(path, allow_pickle=False) as data:
+        if "__meta__" not in data:
+            raise ValueError(f"{path} is not a privslam detector checkpoint (no __meta__)")
+        meta = json.loads(str(data["__meta__"]))
+    meta.setdefault("domain", "unknown")
+    meta.setdefault("card", {})
+    if meta["domain"] not in DOMAINS:
+        raise ValueError(f"{path}: unknown detector domain {meta['domain']!r} (expected one of {DOMAINS})")
+    return meta
 
 
 def load_detector(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:

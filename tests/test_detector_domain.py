@@ -1,0 +1,134 @@
+"""Safe defaults: checkpoints carry their training domain; a synthetic-only detector is refused on real frames."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from privslam_jax.cli import main
+from privslam_jax.commands.filter import check_detector_domain
+from privslam_jax.detect import Detector, DetectorConfig
+from privslam_jax.detect.predict import EMBEDDED_WEIGHTS
+from privslam_jax.detect.weights import checkpoint_meta, save_checkpoint
+from privslam_jax.detect.yolov8 import YOLOv8Config, init_yolov8
+
+H, W, N = 64, 96, 3
+
+
+def _tiny_checkpoint(path, **kw):
+    save_checkpoint(init_yolov8(YOLOv8Config(num_classes=8, scale="tiny")), path, **kw)
+    return path
+
+
+def test_checkpoint_meta_round_trip_and_old_files(tmp_path):
+    p = _tiny_checkpoint(tmp_path / "a.npz", domain="synthetic", card={"real_recall": {"recall": 0.5, "fp_per_image": 1.0}})
+    meta = checkpoint_meta(p)
+    assert meta["domain"] == "synthetic" and meta["card"]["real_recall"]["recall"] == 0.5
+    det = Detector.from_weights(p)
+    assert det.domain == "synthetic" and det.meta["path"] == str(p)
+    # a file written before the field existed reads as "unknown"
+    with np.load(p) as data:
+        old = {k: data[k] for k in data.files}
+    m = json.loads(str(old["__meta__"]))
+    del m["domain"], m["card"]
+    old["__meta__"] = np.array(json.dumps(m))
+    np.savez(tmp_path / "old.npz", **old)
+    assert checkpoint_meta(tmp_path / "old.npz")["domain"] == "unknown"
+    assert checkpoint_meta(tmp_path / "model.pt") == {"domain": "real", "card": {"source": "ultralytics"}}
+    with pytest.raises(ValueError, match="domain must be one of"):
+        _tiny_checkpoint(tmp_path / "b.npz", domain="synthetc")
+    with pytest.raises(FileNotFoundError):
+        checkpoint_meta(tmp_path / "missing.npz")
+
+
+def test_embedded_detector_states_its_domain_and_real_recall():
+    meta = checkpoint_meta(EMBEDDED_WEIGHTS)
+    assert meta["domain"] in ("synthetic", "real")
+    rr = meta["card"]["real_recall"]
+    assert 0 <= rr["recall"] <= 1 and rr["fp_per_image"] >= 0 and "table1b_real_recall.py" in rr["command"]
+
+
+class _Fake:
+    def __init__(self, domain, card=None):
+        self.domain, self.meta = domain, {"domain": domain, "card": card or {}, "path": "x.npz"}
+
+
+def test_check_detector_domain():
+    card = {"real_recall": {"recall": 0.07, "fp_per_image": 1.7, "command": "python experiments/table1b_real_recall.py"}}
+    with pytest.raises(ValueError, match="0.07.*--allow-domain-mismatch"):
+        check_detector_domain(_Fake("synthetic", card), sequence_is_synthetic=False, allow_mismatch=False)
+    with pytest.warns(UserWarning, match="PRIVACY WARNING.*not been measured"):
+        text = check_detector_domain(_Fake("synthetic"), sequence_is_synthetic=False, allow_mismatch=True)
+    assert "synthetic world only" in text
+    assert check_detector_domain(_Fake("synthetic"), sequence_is_synthetic=True, allow_mismatch=False) is None
+    for domain in ("real", "unknown"):
+        assert check_detector_domain(_Fake(domain), sequence_is_synthetic=False, allow_mismatch=False) is None
+
+
+def _real_like_sequence(root, synthetic: bool):
+    seq = root / "sequences" / "s"
+    (seq / "image_2").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for i in range(N):
+        cv2.imwrite(str(seq / "image_2" / f"{i:06d}.png"), (rng.random((H, W, 3)) * 255).astype(np.uint8))
+        if synthetic:
+            (seq / "background").mkdir(exist_ok=True)
+            cv2.imwrite(str(seq / "background" / f"{i:06d}.png"), np.zeros((H, W, 3), np.uint8))
+    P = "P{k}: 50 0 48 0 0 50 32 0 0 0 1 0"
+    (seq / "calib.txt").write_text("\n".join(P.format(k=k) for k in range(4)) + "\n")
+    return seq
+
+
+def test_filter_refuses_synthetic_detector_on_real_frames(tmp_path, capsys):
+    weights = _tiny_checkpoint(tmp_path / "syn.npz", domain="synthetic")
+    seq = _real_like_sequence(tmp_path / "real", synthetic=False)
+    out = tmp_path / "out"
+    assert main(["filter", str(seq), "--masks", "detect", "--detector", str(weights), "--method", "black",
+                 "--out", str(out)]) == 2
+    assert "--allow-domain-mismatch" in capsys.readouterr().err
+    assert not out.exists()  # refused before anything was written
+    with pytest.warns(UserWarning, match="PRIVACY WARNING"):
+        assert main(["filter", str(seq), "--masks", "detect", "--detector", str(weights), "--method", "black",
+                     "--allow-domain-mismatch", "--propagate", "1", "--conf", "0.3", "--out", str(out)]) == 0
+    report = json.loads((out / "sequences" / "s" / "filter_report.json").read_text())
+    det = report["detector"]
+    assert (det["domain"], det["conf"], det["propagate"], det["tta"]) == ("synthetic", 0.3, 1, False)
+    assert "synthetic world only" in det["domain_warning"]
+    assert len(report["masks_per_frame"]["detected"]) == N
+    assert "PRIVACY WARNING" in capsys.readouterr().out
+    # a privslam synth output (background/ present) is the synthetic detector's own domain: no warning
+    seq_syn = _real_like_sequence(tmp_path / "syn", synthetic=True)
+    assert main(["filter", str(seq_syn), "--masks", "detect", "--detector", str(weights), "--method", "black",
+                 "--out", str(tmp_path / "out2")]) == 0
+
+
+def test_detector_default_meta_is_unknown():
+    det = Detector(init_yolov8(YOLOv8Config(num_classes=8, scale="tiny")), DetectorConfig())
+    assert det.domain == "unknown"
+
+
+def test_filter_takes_a_plain_folder_of_frames(tmp_path):
+    from privslam_jax.commands.filter import _consecutive_runs
+
+    assert _consecutive_runs(["0000", "0001", "0007", "0008", "0010"]) == [(0, 2), (2, 4), (4, 5)]
+    assert _consecutive_runs(["a", "b"]) == [(0, 2)]
+    weights = _tiny_checkpoint(tmp_path / "real.npz", domain="real")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(1)
+    for i in (0, 1, 5):
+        cv2.imwrite(str(frames / f"{i:04d}.jpg"), (rng.random((H, W, 3)) * 255).astype(np.uint8))
+    assert main(["filter", str(frames), "--detector", str(weights), "--method", "black", "--propagate", "2",
+                 "--out", str(tmp_path / "o")]) == 0
+    out = tmp_path / "o" / "frames"
+    assert sorted(p.name for p in out.glob("*.png")) == ["0000.png", "0001.png", "0005.png"]
+    assert len(list((out / "masks").glob("*.png"))) == 3
+    report = json.loads((out / "filter_report.json").read_text())
+    assert report["runs"] == [["0000", "0001"], ["0005", "0005"]] and report["detector"]["domain"] == "real"
+    cv2.imwrite(str(frames / "0006.png"), np.zeros((H + 1, W, 3), np.uint8))  # another size
+    assert main(["filter", str(frames), "--detector", str(weights), "--method", "black",
+                 "--out", str(tmp_path / "o2")]) == 2
+    assert not (tmp_path / "o2").exists()  # refused before anything was written
