@@ -114,3 +114,25 @@ def test_class_aware_nms_and_privacy_preset():
     pred[0, 4 + 0] = 0.5
     _, _, cls = non_max_suppression(pred, conf=0.25, iou=0.7, multi_label=True)
     assert sorted(cls.tolist()) == [0, 2, 9]
+
+
+def test_detector_refuses_input_it_does_not_understand():
+    """Issue 15 item 8: 0-255 floats, NaN/inf or negative pixels, NaN weights gave '0 detections' (a leak)."""
+    import jax
+    from flax import nnx
+
+    from privslam_jax.detect import Detector, DetectorConfig
+    from privslam_jax.detect.yolov8 import YOLOv8Config, init_yolov8
+
+    model = init_yolov8(YOLOv8Config(num_classes=8, scale="tiny"))
+    det = Detector(model, DetectorConfig(imgsz=64))
+    ok = np.full((40, 64, 3), 0.5, np.float32)
+    assert len(det.detect([ok])) == 1
+    for bad, match in ((ok * 255, "divide by 255"), (np.where(ok > 0, np.nan, ok), "NaN"), (ok - 1, r"\[0, 1\]")):
+        with pytest.raises(ValueError, match=match):
+            det.detect([bad])
+    params = nnx.state(model, nnx.Param)
+    leaf = jax.tree.leaves(params)[0]
+    nnx.update(model, jax.tree.map(lambda x: x * np.nan if x is leaf else x, params))
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        Detector(model, DetectorConfig(imgsz=64))

@@ -151,3 +151,38 @@ def test_build_opcode_cannot_mutate_allowed_globals(tmp_path):
     _zip_with_pickle(ckpt, payload)
     read_torch_checkpoint(ckpt)
     assert weights._ALLOWED[("torch", "HalfStorage")].dtype == np.float16
+
+
+def _tensor_pickle(size: int, stride: int) -> bytes:
+    """``_rebuild_tensor_v2(storage of 1 float, 0, (size,), (stride,), False)`` as raw protocol-2 opcodes."""
+    import struct
+
+    def s(x):
+        return b"X" + struct.pack("<I", len(x)) + x.encode()
+
+    pid = b"(" + s("storage") + b"ctorch\nFloatStorage\n" + s("0") + s("cpu") + b"K\x01tQ"
+    return (b"\x80\x02ctorch._utils\n_rebuild_tensor_v2\n(" + pid + b"K\x00J" + struct.pack("<i", size) + b"\x85"
+            + b"J" + struct.pack("<i", stride) + b"\x85\x89tR.")
+
+
+@pytest.mark.parametrize("size,stride", [(10**8, 0), (2, -1)])
+def test_oversized_or_negative_tensor_views_are_refused_before_allocating(tmp_path, size, stride):
+    import tracemalloc
+
+    ckpt = tmp_path / "bomb.pt"
+    with zipfile.ZipFile(ckpt, "w") as zf:
+        zf.writestr("a/data.pkl", _tensor_pickle(size, stride))
+        zf.writestr("a/byteorder", "little")
+        zf.writestr("a/data/0", b"\0\0\x80\x3f")
+    tracemalloc.start()
+    try:
+        with pytest.raises(UnsafeCheckpointError, match="tensor view"):
+            read_torch_checkpoint(ckpt)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 10 * 2**20  # a 400 MB view of a 4-byte storage was copied before
+    with zipfile.ZipFile(ckpt, "w") as zf:  # the same opcodes with a sane view load
+        zf.writestr("a/data.pkl", _tensor_pickle(1, 1))
+        zf.writestr("a/data/0", b"\0\0\x80\x3f")
+    assert read_torch_checkpoint(ckpt).tolist() == [1.0]

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Shaped
 
-__all__ = ["read_image", "read_raw", "write_rgb", "write_uint16"]
+__all__ = ["read_image", "read_raw", "write_rgb", "write_uint16", "check_unit_image"]
 
 
 def read_raw(path: str | os.PathLike) -> np.ndarray:
@@ -27,6 +27,23 @@ def read_raw(path: str | os.PathLike) -> np.ndarray:
     if img is None or img.size == 0:
         raise ValueError(f"cannot decode image (corrupt, truncated or not an image): {path}")
     return img
+
+
+def check_unit_image(image: np.ndarray, what: str = "image") -> np.ndarray:
+    """``image`` as float32 after checking the convention: floating point, finite, within ``[0, 1]``.
+
+    Raises ``ValueError`` naming ``what`` otherwise: a privacy stage that silently processes
+    0–255 floats, NaN or negative pixels finds nothing and hides nothing.
+    """
+    img = np.asarray(image)
+    if not np.issubdtype(img.dtype, np.floating):
+        raise ValueError(f"{what} must be float in [0, 1], got dtype {img.dtype} (divide uint8 images by 255)")
+    if img.size and not np.isfinite(img).all():
+        raise ValueError(f"{what} has NaN or infinite pixels")
+    if img.size and (img.min() < 0 or img.max() > 1):
+        hint = " (it looks like 0-255 values: divide by 255)" if img.max() > 1.5 else ""
+        raise ValueError(f"{what} must lie in [0, 1], got values in [{img.min():.3g}, {img.max():.3g}]{hint}")
+    return img.astype(np.float32, copy=False)
 
 
 def read_image(path: str | os.PathLike, grey: bool = False) -> Float[np.ndarray, "H W *C"]:

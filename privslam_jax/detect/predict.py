@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from privslam_jax.data.images import check_unit_image
 from privslam_jax.detect.decode import decode_head, non_max_suppression
 from privslam_jax.detect.yolov8 import STRIDES, YOLOv8, fuse_batchnorm
 from privslam_jax.types import Detections
@@ -115,7 +116,7 @@ def _as_hwc3(image: np.ndarray) -> np.ndarray:
         return img
     if not np.issubdtype(img.dtype, np.floating):
         raise ValueError(f"images must be uint8 or float in [0, 1], got dtype {img.dtype}")
-    return img.astype(np.float32)
+    return check_unit_image(img, "detector input image")
 
 
 def letterbox(image: np.ndarray, imgsz: int = 640, mode: str = "rect") -> Letterboxed:
@@ -163,6 +164,10 @@ class Detector:
         self.model, self.config = model, config
         self.names = dict(names) if names else {i: str(i) for i in range(model.config.num_classes)}
         self.meta = {"domain": "unknown", "card": {}, **dict(meta or {})}
+        bad = [jax.tree_util.keystr(k) for k, v in jax.tree_util.tree_leaves_with_path(nnx.state(model))
+               if jnp.issubdtype(v.dtype, jnp.floating) and not bool(jnp.isfinite(v).all())]
+        if bad:  # NaN weights detect nothing: refuse instead of reporting an empty street
+            raise ValueError(f"detector weights hold NaN or infinite values in {len(bad)} arrays, e.g. {bad[0]}")
         graphdef, state = nnx.split(fuse_batchnorm(model))  # inference: BatchNorm folded (as ultralytics)
         self._state = state
         reg_max = model.config.reg_max

@@ -33,6 +33,7 @@ from __future__ import annotations
 import collections
 import io
 import json
+import math
 import pickle
 import zipfile
 from collections.abc import Mapping
@@ -103,7 +104,12 @@ class ModuleStub:
 def _rebuild_tensor_v2(storage: np.ndarray, offset: int, size: tuple, stride: tuple, *_: object) -> np.ndarray:
     if not isinstance(storage, np.ndarray):
         raise UnsafeCheckpointError(f"tensor storage is a {type(storage).__name__}, not a storage")
-    n = int(np.prod(size)) if len(size) else 1
+    if (not isinstance(size, tuple) or not isinstance(stride, tuple) or len(size) != len(stride)
+            or not all(isinstance(v, int) and v >= 0 for v in (offset, *size, *stride))):
+        raise UnsafeCheckpointError(f"tensor view size {size!r} / stride {stride!r} / offset {offset!r} is malformed")
+    n = math.prod(size)
+    if n > storage.size:  # a view larger than its storage (e.g. stride 0) would allocate more than the file holds
+        raise UnsafeCheckpointError(f"tensor view {size}/{stride} has {n} elements, more than its storage ({storage.size})")
     if n == 0:
         out = np.zeros(size, storage.dtype)
     else:

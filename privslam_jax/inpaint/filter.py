@@ -25,6 +25,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float
 
+from privslam_jax.data.images import check_unit_image
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.crops import crop_box, extract, paste_back
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGenerator
@@ -195,7 +196,7 @@ def filter_frame(
         raise ValueError(f"masks must be bool (K, {h}, {w}), got {masks.dtype} {masks.shape}")
     if method not in FILTER_METHODS:
         raise ValueError(f"unknown filter method {method!r}; choose from {', '.join(FILTER_METHODS)}")
-    image = image.astype(np.float32, copy=False)
+    image = check_unit_image(image, "filter_frame image")
     masks = masks[masks.any(axis=(1, 2))]
     if len(masks) == 0:
         return image.copy()
