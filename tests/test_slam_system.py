@@ -69,6 +69,22 @@ def test_black_frame_is_reported_not_a_crash(seq1):
     assert np.isfinite(np.asarray(res.trajectory.poses.wxyz_xyz)).all()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2, 5])
+def test_blurred_run_after_tracking_is_lost_not_a_crash(shared, seed):
+    """Issue 15 item 1: frames 8-11 of seq1 blurred (sigma 8) crashed in track_local_map with T_c_w = None,
+    because the motion model reported 10-19 matches for a lost frame without estimating a pose."""
+    import cv2
+
+    from privslam_jax.data.kitti import KittiSequence
+
+    seq = KittiSequence(shared / "data/kitti_odometry/sequences/seq1", grey=True)
+    frames = [seq.image(i) if i < 8 else cv2.GaussianBlur(seq.image(i), (0, 0), 8) for i in range(12)]
+    res = run_slam(frames, seq.camera, SlamConfig(seed=seed))
+    assert len(res.trajectory) == 12 and res.tracked[:8].all()
+    assert np.isfinite(np.asarray(res.trajectory.poses.wxyz_xyz)).all()
+    assert any("lost" in e for e in res.events)
+
+
 def test_bad_input_errors():
     cam = Camera(100.0, 100.0, 32.0, 24.0, width=64, height=48)
     slam = Slam(cam, SlamConfig())

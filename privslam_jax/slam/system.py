@@ -362,6 +362,8 @@ class Slam:
                 tim["reloc"] = time.perf_counter() - t
                 if n >= tcfg.reloc_min_inliers:
                     self.events.append(f"relocalised at frame {frame.index} ({n} inliers)")
+            if frame.T_c_w is None:  # no stage estimated a pose: nothing to search the local map with
+                n = 0
             if n >= 10:
                 t = time.perf_counter()
                 n = track_local_map(frame, m, tcfg)

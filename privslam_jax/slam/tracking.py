@@ -154,7 +154,12 @@ def _optimise_frame(frame: Frame, m: Map, T0: np.ndarray) -> int:
 
 def track_motion_model(frame: Frame, last: Frame, T_pred: np.ndarray, m: Map, radius: float,
                        cfg: TrackingConfig) -> int:
-    """Search the last frame's points around their predicted projections, then refine."""
+    """Search the last frame's points around their predicted projections, then refine.
+
+    Returns the inliers of the refined pose, or 0 — with no pose set and no matches kept — when
+    fewer than ``cfg.min_motion_matches`` points were found (10-19 matches without a pose once sent
+    a lost frame to the local-map search with ``T_c_w = None``).
+    """
     idx = np.flatnonzero(last.point_ids >= 0)
     pid = last.point_ids[idx]
     good = ~m.bad[pid]
@@ -170,9 +175,9 @@ def track_motion_model(frame: Frame, last: Frame, T_pred: np.ndarray, m: Map, ra
             break
     frame.point_ids[:] = -1
     ok = kp >= 0
+    if ok.sum() < cfg.min_motion_matches:  # no pose was estimated: report no inliers, keep no matches
+        return 0
     frame.point_ids[kp[ok]] = pid[ok]
-    if ok.sum() < cfg.min_motion_matches:
-        return int(ok.sum())
     return _optimise_frame(frame, m, T_pred)
 
 
