@@ -113,3 +113,26 @@ def test_second_call_does_not_recompile():
     second = np.asarray(line2point(random_lift(pts, fixed_key(1)), cfg)[0])
     assert (l2p._coarse_rows._cache_size(), l2p._refine_rows._cache_size()) == sizes
     assert not np.allclose(first, second)
+
+
+def test_equal_offsets_end_the_peak_search():
+    """Issue 15 item 2: with all offsets equal the interval never shrank and the while_loop never ended.
+    Run in a subprocess so that a regression fails on a timeout instead of hanging the suite."""
+    import subprocess
+
+    code = (
+        "import numpy as np, jax.numpy as jnp\n"
+        "from privslam_jax.attacks.line2point import get_peak, line2point\n"
+        "from privslam_jax.privacy.lift import fixed_key, random_lift\n"
+        "v = np.zeros(64, bool); v[:40] = True\n"
+        "print(float(get_peak(jnp.full(64, 2.5), jnp.asarray(v))))\n"
+        "p = [10.0, -5.0, 30.0]  # hung before the fix (the origin did not)\n"
+        "lines = random_lift(jnp.tile(jnp.asarray([p]), (100, 1)), fixed_key(0))\n"
+        "rec = np.asarray(line2point(lines)[0])\n"
+        "print(np.abs(rec - p).max())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    peak, err = (float(x) for x in out.stdout.split())
+    assert peak == 2.5
+    assert err < 1e-3  # every line passes through the one point: the attack recovers it

@@ -178,11 +178,11 @@ def get_peak(
         return (s[a + (m - 1) // 2] + s[a + m // 2]) / 2
 
     def cond(state):
-        start, end, kv = state
-        return (end - start > 5) & (kv > config.kuiper_threshold)
+        start, end, kv, shrunk = state
+        return (end - start > 5) & (kv > config.kuiper_threshold) & shrunk
 
     def body(state):
-        start, end, _ = state
+        start, end, _, _ = state
         m = end - start
         lo, hi = s[start], s[end - 1]
         same = lo == hi
@@ -200,12 +200,14 @@ def get_peak(
         kmax = jnp.argmax(jnp.where(ks >= kmin, diff, -jnp.inf))
         kv = hist_cs[kmax] + uni[kmin] - hist_cs[kmin] - uni[kmax]
         new_start = jnp.clip(jnp.searchsorted(s, edges[kmin], side="right"), start, end)
-        new_end = jnp.clip(jnp.searchsorted(s, edges[kmax], side="left"), start, end)
-        return new_start, jnp.maximum(new_end, new_start), kv
+        new_end = jnp.maximum(jnp.clip(jnp.searchsorted(s, edges[kmax], side="left"), start, end), new_start)
+        # An interval that did not shrink would repeat forever (all offsets equal: issue 15): stop.
+        # Every other step drops at least one offset, so the loop ends after at most K steps.
+        return new_start, new_end, kv, (new_start != start) | (new_end != end)
 
     start0 = jnp.minimum(jnp.asarray(trim, jnp.int32), n)
     end0 = jnp.maximum(n - trim, start0)
-    start, end, _ = lax.while_loop(cond, body, (start0, end0, jnp.asarray(1.0, dt)))
+    start, end, _, _ = lax.while_loop(cond, body, (start0, end0, jnp.asarray(1.0, dt), jnp.asarray(True)))
     return jnp.where(end > start, median(start, end), median(jnp.int32(0), n))
 
 
