@@ -124,3 +124,28 @@ def test_plucker_helpers_against_numpy():
         np.testing.assert_allclose([t1[k], t2[k]], t, atol=1e-8)
         np.testing.assert_allclose(lld[k], np.linalg.norm(p1[k] + t[0] * d1[k] - p2[k] - t[1] * d2[k]), atol=1e-8)
     np.testing.assert_allclose(lld[0], np.linalg.norm(np.cross(p2[0] - p1[0], d1[0])), atol=1e-9)
+
+
+@pytest.mark.parametrize("lift", [random_lift, paired_lift])
+def test_repeated_points_share_one_line_and_the_attack_learns_nothing_more(lift):
+    """Issue 15 item 5: a repeated point was lifted to distinct lines through it, and Line2Point
+    recovered it to 8e-6 m. Copies now share one line; a cloud without copies lifts as before."""
+    from privslam_jax.attacks.line2point import line2point
+
+    rng = np.random.default_rng(0)
+    base = rng.uniform(-20, 20, (300, 3))
+    pts = np.concatenate([base, np.repeat(base[:5], 6, axis=0)])  # 5 points repeated 6 more times
+    lines = lift(pts, fixed_key(1))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    for i in range(5):
+        copies = np.flatnonzero((pts == base[i]).all(1))
+        assert len(copies) == 7
+        assert (d[copies] == d[copies[0]]).all() and (m[copies] == m[copies[0]]).all()
+    # every line still passes through its point
+    assert np.asarray(point_line_distance(jnp.asarray(pts, jnp.float32), lines.directions, lines.moments)).max() < 1e-3
+    # unchanged for the distinct points: same lines as lifting the cloud without copies
+    alone = lift(base, fixed_key(1))
+    np.testing.assert_array_equal(np.asarray(alone.directions), d[:300])
+    rec, _ = line2point(lines)
+    err = np.linalg.norm(np.asarray(rec)[300:] - pts[300:], axis=1)
+    assert np.median(err) > 0.01  # before the fix: ~1e-5 m for every repeated point

@@ -15,6 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 __all__ = ["add_parser", "run", "load_points"]
 
 
@@ -62,7 +64,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from privslam_jax.data.ply import save_line_cloud
-    from privslam_jax.privacy.lift import entropy_key, fixed_key, paired_lift, random_lift
+    from privslam_jax.privacy.lift import entropy_key, fixed_key, paired_lift, random_lift, unique_points
 
     cloud = load_points(args.points)
     if args.seed is None:
@@ -74,5 +76,7 @@ def run(args: argparse.Namespace) -> int:
     lines = lift(cloud.xyz, key)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_line_cloud(args.out, lines, binary=not args.ascii)
-    print(f"lifted {len(cloud)} points to {len(lines)} lines ({args.method}) -> {args.out}")
+    first, _ = unique_points(np.asarray(cloud.xyz))
+    repeated = "" if len(first) == len(cloud) else f"; {len(cloud) - len(first)} repeated points share their point's line"
+    print(f"lifted {len(cloud)} points to {len(lines)} lines ({args.method}{repeated}) -> {args.out}")
     return 0

@@ -14,6 +14,12 @@ The output is a :class:`~privslam_jax.types.LineCloud` in Plücker coordinates `
 which carries nothing but the line: the original point is never stored.  Line ``i`` is the line
 of point ``i`` (for paired lifting the two points of a pair share their line).
 
+**Duplicate points.** Two lines through one point meet there, so a map that repeats a point
+would publish it exactly (an attack recovers it to 1e-5 m). Both lifts therefore lift each
+*distinct* point once and give every copy of it that same line (:func:`unique_points`): the
+line cloud then says only that the point was repeated. Near-duplicates (distinct but close
+points) are not merged.
+
 **Keys.** A lift is only as secret as its randomness.  Without a key, the key is drawn from
 the operating system's entropy (``os.urandom``, 64 bits), so two default lifts of the same
 cloud differ; pass :func:`fixed_key` (an explicit seed) only for reproducible experiments.
@@ -30,7 +36,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from privslam_jax.types import LineCloud
 
-__all__ = ["entropy_key", "fixed_key", "random_directions", "random_lift", "paired_lift", "pairing"]
+__all__ = ["entropy_key", "fixed_key", "random_directions", "random_lift", "paired_lift", "pairing", "unique_points"]
 
 
 def entropy_key() -> jax.Array:
@@ -57,6 +63,20 @@ def _as_points(points: ArrayLike) -> jax.Array:
     return p
 
 
+def unique_points(points: Float[ArrayLike, "N 3"]) -> tuple[np.ndarray, np.ndarray]:
+    """``(first, inverse)``: indices of the distinct rows in order of first appearance, and for
+    every row the position of its distinct row in ``first`` (``points[first][inverse] == points``).
+
+    A cloud without repeated points gives ``first = arange(N)``, so lifting it is unchanged.
+    """
+    arr = np.asarray(points)
+    _, first, inverse = np.unique(arr, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[np.asarray(inverse).reshape(-1)]
+
+
 @jax.jit
 def random_directions(key: jax.Array, like: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
     """Unit directions ``n/‖n‖`` with ``n ~ N(0, I₃)``: uniform on the sphere (one per row of ``like``)."""
@@ -73,6 +93,11 @@ def random_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
     """
     p = _as_points(points)
     key = entropy_key() if key is None else key
+    first, inverse = unique_points(p)
+    if len(first) < p.shape[0]:  # repeated points share one line (module docstring)
+        lines = random_lift(p[jnp.asarray(first)], key)
+        idx = jnp.asarray(inverse)
+        return LineCloud(directions=lines.directions[idx], moments=lines.moments[idx])
     d = random_directions(key, p)
     return LineCloud(directions=d, moments=jnp.cross(p, d))
 
@@ -94,6 +119,11 @@ def paired_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
     """
     p = _as_points(points)
     key = entropy_key() if key is None else key
+    first, inverse = unique_points(p)
+    if len(first) < p.shape[0]:  # pair the distinct points; copies share their line
+        lines = paired_lift(p[jnp.asarray(first)], key)
+        idx = jnp.asarray(inverse)
+        return LineCloud(directions=lines.directions[idx], moments=lines.moments[idx])
     k_pair, k_sign, k_dir = jax.random.split(key, 3)
     n = p.shape[0]
     partner = pairing(n, k_pair)
