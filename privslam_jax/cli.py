@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (FileNotFoundError, ValueError) as err:  # bad input: clear message, no traceback
+    except (OSError, ValueError) as err:  # bad input or a failed write: clear message, no traceback
         print(f"privslam {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -132,3 +132,28 @@ def test_filter_takes_a_plain_folder_of_frames(tmp_path):
     assert main(["filter", str(frames), "--detector", str(weights), "--method", "black",
                  "--out", str(tmp_path / "o2")]) == 2
     assert not (tmp_path / "o2").exists()  # refused before anything was written
+
+
+def test_write_failure_is_an_error_not_a_shorter_sequence(tmp_path, capsys):
+    """Issue 15 item 3: cv2.imwrite's result was unchecked, so a frame that could not be written
+    vanished and the run still said 'filtered sequence written'."""
+    from privslam_jax.data.images import read_image, write_image_file
+
+    img = (np.random.default_rng(0).random((H, W, 3)) * 255).astype(np.uint8)
+    target = tmp_path / "a.png"
+    write_image_file(target, img)
+    np.testing.assert_array_equal(cv2.imread(str(target)), img)
+    (tmp_path / "b.png").mkdir()  # a folder where the frame should go
+    with pytest.raises(OSError, match="b.png"):
+        write_image_file(tmp_path / "b.png", img)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.png"]  # no temporary left behind
+    assert read_image(target).shape == (H, W, 3)
+
+    weights = _tiny_checkpoint(tmp_path / "real.npz", domain="real")
+    seq = _real_like_sequence(tmp_path / "real", synthetic=False)
+    out = tmp_path / "out"
+    (out / "sequences" / "s" / "image_2" / "000001.png").mkdir(parents=True)
+    assert main(["filter", str(seq), "--masks", "detect", "--detector", str(weights), "--method", "black",
+                 "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert "000001.png" in captured.err and "written" not in captured.out

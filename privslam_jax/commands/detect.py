@@ -85,6 +85,7 @@ def _annotate(rgb: np.ndarray, boxes: np.ndarray, scores: np.ndarray, classes: n
 def run(args: argparse.Namespace) -> int:
     import cv2
 
+    from privslam_jax.data.images import write_image_file
     from privslam_jax.detect.predict import PRIVACY_CLASSES, Detector, DetectorConfig
 
     weights = args.weights
@@ -127,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
                     for b, s, c in zip(boxes, scores, cls)
                 ]})
                 png = out / (Path(rel.replace("/", "__")).with_suffix(".png").name)
-                cv2.imwrite(str(png), _annotate(img, boxes, scores, cls, detector.names))
+                write_image_file(png, _annotate(img, boxes, scores, cls, detector.names))
                 bar.update(1)
     (out / "detections.json").write_text(json.dumps({"images": records}, indent=1))
     n = sum(len(r["detections"]) for r in records)

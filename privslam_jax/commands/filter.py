@@ -40,6 +40,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from privslam_jax.data.images import write_image_file
+
 __all__ = ["add_parser", "run", "filter_sequence", "check_detector_domain"]
 
 
@@ -73,7 +75,7 @@ def add_parser(subparsers) -> None:
 
 def _write_image(path: Path, image: np.ndarray, grey: bool) -> None:
     u8 = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
-    cv2.imwrite(str(path), u8[..., 0] if grey else cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
+    write_image_file(path, u8[..., 0] if grey else cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
 
 
 def _label_map(masks: np.ndarray, ids: list[int], shape: tuple[int, int]) -> np.ndarray:
@@ -273,7 +275,7 @@ def filter_sequence(
             filtered = filter_frame(image, masks, method, inpainter=inpainter, seed=seed + i)
             _write_image(dst / f"{stem}.png", filtered, grey_input)
             if k == 0:
-                cv2.imwrite(str(out_dir / "masks" / f"{stem}.png"), _label_map(masks, ids, (h, w)))
+                write_image_file(out_dir / "masks" / f"{stem}.png", _label_map(masks, ids, (h, w)))
     (out_dir / "instance_classes.json").write_text(json.dumps({str(k): v for k, v in sorted(classes.items())}))
     (out_dir / "filter_report.json").write_text(json.dumps(report, indent=1))
     return out_dir

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Shaped
 
-__all__ = ["read_image", "read_raw", "write_rgb", "write_uint16", "check_unit_image"]
+__all__ = ["read_image", "read_raw", "write_rgb", "write_uint16", "write_image_file", "check_unit_image"]
 
 
 def read_raw(path: str | os.PathLike) -> np.ndarray:
@@ -87,8 +87,27 @@ def write_uint16(path: str | os.PathLike, values: Shaped[np.ndarray, "H W"]) -> 
     _write(path, v.astype(np.uint16))
 
 
-def _write(path: str | os.PathLike, img: np.ndarray) -> None:
+def write_image_file(path: str | os.PathLike, img: np.ndarray) -> None:
+    """Write an OpenCV-layout array (BGR or single channel; the suffix picks the format) atomically.
+
+    The file is encoded in memory, written to a temporary name beside ``path`` and renamed over
+    it, so a reader sees the old file or the whole new one, never a part. Any failure (encoder
+    refusal, full disk, a folder in the way) raises ``OSError`` naming ``path``: a lost frame
+    must never look like a shorter sequence.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), img):
-        raise ValueError(f"OpenCV could not write {path}")
+    ok, buf = cv2.imencode(path.suffix or ".png", img)
+    if not ok:
+        raise OSError(f"OpenCV could not encode {path}")
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            f.write(buf.tobytes())
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise OSError(f"could not write {path}: {err.strerror or err}") from err
+
+
+_write = write_image_file

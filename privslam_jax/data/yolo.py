@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from privslam_jax.data.images import read_image
+from privslam_jax.data.images import read_image, write_image_file
 
 __all__ = [
     "read_yolo_labels",
@@ -236,7 +236,7 @@ def export_synthetic_yolo(
             frame = seq[i]
             stem = f"s{int(seed):06d}_f{i:04d}"
             rgb8 = np.clip(np.round(frame.image * 255), 0, 255).astype(np.uint8)
-            cv2.imwrite(str(img_dir / f"{stem}.png"), cv2.cvtColor(rgb8, cv2.COLOR_RGB2BGR))
+            write_image_file(img_dir / f"{stem}.png", cv2.cvtColor(rgb8, cv2.COLOR_RGB2BGR))
             cls, boxes = synthetic_labels(frame, rule)
             write_yolo_labels(lab_dir / f"{stem}.txt", cls, boxes, rgb8.shape[1], rgb8.shape[0])
             n += 1

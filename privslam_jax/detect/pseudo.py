@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from privslam_jax.data.images import write_image_file
 from privslam_jax.data.yolo import write_yolo_labels
 from privslam_jax.detect.temporal import PropagationConfig, detect_sequence
 
@@ -89,8 +90,7 @@ def export_pseudo_yolo(detector, runs: Sequence[Sequence[Path]], root: str | Pat
                 paint[max(y1, 0):min(y2, h), max(x1, 0):min(x2, w)] = False
             img = np.where(paint[..., None], np.uint8(114), img)
             stem = f"r{r:02d}_{Path(p).stem}"
-            if not cv2.imwrite(str(img_dir / f"{stem}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
-                raise OSError(f"could not write {img_dir / f'{stem}.png'}")
+            write_image_file(img_dir / f"{stem}.png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
             write_yolo_labels(lab_dir / f"{stem}.txt", cls, np.clip(boxes, 0, [w, h, w, h]), w, h)
             n, n_lab, n_ign = n + 1, n_lab + len(boxes), n_ign + len(ignore)
     return n, n_lab, n_ign
