@@ -41,7 +41,6 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,6 +51,7 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 configure_xla()
 
 from privslam_jax._shared import shared_dir  # noqa: E402
+from privslam_jax.data.images import read_rgb8  # noqa: E402
 from privslam_jax.data.kitti_object import read_kitti_object_labels  # noqa: E402
 from privslam_jax.detect import PRIVACY_CLASSES, Detector, DetectorConfig  # noqa: E402
 from privslam_jax.detect.temporal import PropagationConfig, dense_flow, flow_grey, box_flow, detect_sequence  # noqa: E402
@@ -67,13 +67,6 @@ CONFIGS = [  # (name, conf, tta, propagate)
     ("TTA + propagate ±3, conf 0.4", 0.4, True, 3),
     ("TTA + propagate ±3, conf 0.1 (README's real-frame example)", 0.1, True, 3),
 ]
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ValueError(f"cannot read image {path}")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def run_config(det: Detector, images: list[np.ndarray], conf: float, tta: bool, propagate: int,
@@ -144,13 +137,13 @@ def main(argv: list[str] | None = None) -> int:
 
     ko = shared / "data" / "real" / "kitti_object"
     ko_paths = sorted((ko / "image_2").glob("*.png"))
-    ko_images = [read_rgb(q) for q in ko_paths]
+    ko_images = [read_rgb8(q) for q in ko_paths]
     ko_labels = []
     for q in ko_paths:
         lab = read_kitti_object_labels(ko / "label_2" / f"{q.stem}.txt")
         ko_labels.append((lab.boxes, lab.accepted, lab.types, lab.ignored))
     raw = sorted((shared / "data" / "real" / "kitti_raw_a" / "frames").glob("*.png"))
-    raw_images = [read_rgb(q) for q in raw]
+    raw_images = [read_rgb8(q) for q in raw]
     idx = [int(q.stem) for q in raw]
     cuts = [0] + [i for i in range(1, len(idx)) if idx[i] != idx[i - 1] + 1] + [len(idx)]
     raw_runs = list(zip(cuts[:-1], cuts[1:]))

@@ -83,9 +83,7 @@ def _annotate(rgb: np.ndarray, boxes: np.ndarray, scores: np.ndarray, classes: n
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-
-    from privslam_jax.data.images import write_image_file
+    from privslam_jax.data.images import read_rgb8, write_image_file
     from privslam_jax.detect.predict import PRIVACY_CLASSES, Detector, DetectorConfig
 
     weights = args.weights
@@ -112,12 +110,7 @@ def run(args: argparse.Namespace) -> int:
     with tqdm(total=len(files), desc="detect", unit="img") as bar:
         for start in range(0, len(files), chunk):
             paths = files[start : start + chunk]
-            images = []
-            for p in paths:
-                bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
-                if bgr is None:
-                    raise ValueError(f"cannot read image {p}")
-                images.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+            images = [read_rgb8(p) for p in paths]
             for p, img, det in zip(paths, images, detector.detect(images)):
                 boxes, scores = np.asarray(det.boxes, np.float64), np.asarray(det.scores, np.float64)
                 cls = np.asarray(det.class_ids).astype(int)

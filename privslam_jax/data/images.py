@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Shaped
 
-__all__ = ["read_image", "read_raw", "write_rgb", "write_uint16", "write_image_file", "check_unit_image"]
+__all__ = ["read_image", "read_raw", "read_rgb8", "write_rgb", "write_uint16", "write_image_file", "check_unit_image"]
 
 
 def read_raw(path: str | os.PathLike) -> np.ndarray:
@@ -27,6 +27,17 @@ def read_raw(path: str | os.PathLike) -> np.ndarray:
     if img is None or img.size == 0:
         raise ValueError(f"cannot decode image (corrupt, truncated or not an image): {path}")
     return img
+
+
+def read_rgb8(path: str | os.PathLike) -> np.ndarray:
+    """``(H, W, 3)`` uint8 RGB as ultralytics reads images (``cv2.imread`` colour, grey repeated)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"image not found: {path}")
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None or img.size == 0:
+        raise ValueError(f"cannot decode image (corrupt, truncated or not an image): {path}")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def check_unit_image(image: np.ndarray, what: str = "image") -> np.ndarray:

@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from privslam_jax.data.images import write_image_file
+from privslam_jax.data.images import read_rgb8, write_image_file
 from privslam_jax.data.yolo import write_yolo_labels
 from privslam_jax.detect.temporal import PropagationConfig, detect_sequence
 
@@ -75,12 +75,7 @@ def export_pseudo_yolo(detector, runs: Sequence[Sequence[Path]], root: str | Pat
     lab_dir.mkdir(parents=True, exist_ok=True)
     n = n_lab = n_ign = 0
     for r, paths in enumerate(runs):
-        frames = []
-        for p in paths:
-            bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise ValueError(f"cannot read image {p}")
-            frames.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        frames = [read_rgb8(p) for p in paths]
         for p, img, (boxes, cls, ignore) in zip(paths, frames, pseudo_label(detector, frames, config)):
             h, w = img.shape[:2]
             paint = np.zeros((h, w), bool)

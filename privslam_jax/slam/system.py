@@ -31,7 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from privslam_jax.slam.frontend import Features, OrbConfig, extract_orb, rgbd_depths, stereo_depths, to_gray_u8
+from privslam_jax.slam.frontend import OrbConfig, extract_orb, rgbd_depths, stereo_depths, to_gray_u8
 from privslam_jax.slam.initializer import InitConfig, initialize_two_view
 from privslam_jax.slam.mapping import (
     KeyFrame,
