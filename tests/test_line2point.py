@@ -123,11 +123,14 @@ def test_equal_offsets_end_the_peak_search():
     code = (
         "import numpy as np, jax.numpy as jnp\n"
         "from privslam_jax.attacks.line2point import get_peak, line2point\n"
-        "from privslam_jax.privacy.lift import fixed_key, random_lift\n"
+        "from privslam_jax.privacy.lift import fixed_key, random_directions\n"
+        "from privslam_jax.types import LineCloud\n"
         "v = np.zeros(64, bool); v[:40] = True\n"
         "print(float(get_peak(jnp.full(64, 2.5), jnp.asarray(v))))\n"
         "p = [10.0, -5.0, 30.0]  # hung before the fix (the origin did not)\n"
-        "lines = random_lift(jnp.tile(jnp.asarray([p]), (100, 1)), fixed_key(0))\n"
+        "pts = jnp.tile(jnp.asarray([p]), (100, 1))  # 100 distinct lines through one point, built as the\n"
+        "d = random_directions(fixed_key(0), pts)  # random lift did before it gave copies one line\n"
+        "lines = LineCloud(directions=d, moments=jnp.cross(pts, d))\n"
         "rec = np.asarray(line2point(lines)[0])\n"
         "print(np.abs(rec - p).max())\n"
     )
