@@ -66,6 +66,11 @@ def test_check_detector_domain():
     assert check_detector_domain(_Fake("synthetic"), sequence_is_synthetic=True, allow_mismatch=False) is None
     for domain in ("real", "unknown"):
         assert check_detector_domain(_Fake(domain), sequence_is_synthetic=False, allow_mismatch=False) is None
+    # a real-domain detector whose measured recall is low runs, with the number in a warning
+    with pytest.warns(UserWarning, match="PRIVACY WARNING.*0.07.*--tta"):
+        assert "misses" in check_detector_domain(_Fake("real", card), sequence_is_synthetic=False, allow_mismatch=False)
+    high = {"real_recall": {"recall": 0.95, "fp_per_image": 1.0}}
+    assert check_detector_domain(_Fake("real", high), sequence_is_synthetic=False, allow_mismatch=False) is None
 
 
 def _real_like_sequence(root, synthetic: bool):
@@ -96,7 +101,7 @@ def test_filter_refuses_synthetic_detector_on_real_frames(tmp_path, capsys):
     report = json.loads((out / "sequences" / "s" / "filter_report.json").read_text())
     det = report["detector"]
     assert (det["domain"], det["conf"], det["propagate"], det["tta"]) == ("synthetic", 0.3, 1, False)
-    assert "synthetic world only" in det["domain_warning"]
+    assert "synthetic world only" in det["privacy_warning"]
     assert len(report["masks_per_frame"]["detected"]) == N
     assert "PRIVACY WARNING" in capsys.readouterr().out
     # a privslam synth output (background/ present) is the synthetic detector's own domain: no warning

@@ -68,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--init-weights", default=None, help="fine-tune from this .npz checkpoint (same scale and classes)")
     p.add_argument("--synth-randomize-camera", action="store_true",
                    help="per seed random camera height, focal length and object density in the synthetic export")
+    p.add_argument("--domain", choices=("synthetic", "real", "unknown"), default="unknown",
+                   help="what the training data was, recorded in the checkpoint (real: any real frames in it)")
     p.add_argument("--coco-names", action="store_true", help="store COCO class names in the checkpoint")
     p.add_argument("--synth-train-seeds", default=None, help="A-B: export synthetic seeds A..B as the train split first")
     p.add_argument("--synth-val-seeds", default=None, help="C-D: export synthetic seeds C..D as the val split first")
@@ -94,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         if a.num_classes > len(COCO_NAMES_8):
             raise ValueError(f"--coco-names knows the first {len(COCO_NAMES_8)} COCO names, got {a.num_classes} classes")
         names = {i: COCO_NAMES_8[i] for i in range(a.num_classes)}
-    save_checkpoint(result.model, a.out, names)
+    save_checkpoint(result.model, a.out, names, domain=a.domain)
     print(f"wrote {a.out} after {result.step} steps")
     if a.val_split:
         mode = "rect" if a.imgh else "square"

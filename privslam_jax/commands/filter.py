@@ -42,7 +42,7 @@ from tqdm import tqdm
 
 from privslam_jax.data.images import write_image_file
 
-__all__ = ["add_parser", "run", "filter_sequence", "check_detector_domain"]
+__all__ = ["add_parser", "run", "filter_sequence", "check_detector_domain", "RECALL_WARNING_BELOW"]
 
 
 def add_parser(subparsers) -> None:
@@ -118,25 +118,39 @@ def _consecutive_runs(stems: list[str]) -> list[tuple[int, int]]:
     return list(zip(cuts[:-1], cuts[1:]))
 
 
-def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch: bool) -> str | None:
-    """Refuse (or, when allowed, warn about) a synthetic-only detector on frames that are not synthetic.
+RECALL_WARNING_BELOW = 0.9
+"""A detector whose measured real-frame recall is below this gets a PRIVACY WARNING on real frames."""
 
-    Returns the warning text when the run goes ahead with a mismatch, ``None`` otherwise. A privacy
-    filter that quietly finds nothing on frames it does not understand leaks every object in them.
+
+def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch: bool) -> str | None:
+    """Refuse, or warn about, a detector that will miss objects in these frames.
+
+    On frames that are not a ``privslam synth`` output: a detector trained on the synthetic world
+    only is refused (``ValueError``) unless ``allow_mismatch``, then warned about; any detector
+    whose checkpoint states a real-frame recall below :data:`RECALL_WARNING_BELOW` is warned about
+    with that number. Returns the warning text (``None`` without one). A privacy filter that
+    quietly finds nothing on frames it does not understand leaks every object in them.
     """
     import warnings
 
-    if detector.domain != "synthetic" or sequence_is_synthetic:
+    if sequence_is_synthetic:
         return None
     recall = detector.meta.get("card", {}).get("real_recall")
-    measured = (f"measured recall on real KITTI frames: {recall['recall']:.2f} with "
+    measured = (f"measured recall on real KITTI frames: {recall['recall']:.2f} at conf {recall.get('conf', 0.4)} with "
                 f"{recall['fp_per_image']:.2f} false positives per image ({recall.get('command', '')})"
                 if isinstance(recall, dict) else "its recall on real frames has not been measured")
-    text = (f"the detector {detector.meta.get('path', '')} was trained on the synthetic world only ({measured}); "
-            "on these frames, which are not a `privslam synth` output, it leaves most people and vehicles visible")
-    if not allow_mismatch:
-        raise ValueError(text + ". Give --detector a detector trained on real images (e.g. an ultralytics .pt you "
-                         "own, see docs/detector.md), or pass --allow-domain-mismatch to run anyway.")
+    name = detector.meta.get("path", "embedded")
+    if detector.domain == "synthetic":
+        text = (f"the detector {name} was trained on the synthetic world only ({measured}); on these frames, which "
+                "are not a `privslam synth` output, it leaves most people and vehicles visible")
+        if not allow_mismatch:
+            raise ValueError(text + ". Give --detector a detector trained on real images (e.g. an ultralytics .pt you "
+                             "own, see docs/detector.md), or pass --allow-domain-mismatch to run anyway.")
+    elif isinstance(recall, dict) and recall["recall"] < RECALL_WARNING_BELOW:
+        text = (f"the detector {name} misses people and vehicles in real frames ({measured}); raise recall with "
+                "--tta, --conf 0.1 and --propagate 3, or use a stronger detector (docs/detector.md)")
+    else:
+        return None
     warnings.warn("PRIVACY WARNING: " + text, UserWarning, stacklevel=2)
     return text
 
@@ -196,7 +210,7 @@ def filter_sequence(
                        if propagate else None)
         report["detector"] = {"weights": detector.meta.get("path", "embedded"), "domain": detector.domain,
                               "card": detector.meta.get("card", {}), "conf": preset.conf, "propagate": propagate,
-                              "tta": tta, "domain_warning": mismatch}
+                              "tta": tta, "privacy_warning": mismatch}
     inpainter = None
     if method == "edgeconnect":
         inpainter = Inpainter.embedded() if model_path is None else Inpainter.load(model_path)
@@ -293,7 +307,7 @@ def run(args: argparse.Namespace) -> int:
               f"propagate {det['propagate']}, tta {det['tta']}: {sum(per['detected'])} detected, "
               f"{sum(per['promoted'])} promoted, {sum(per['propagated'])} propagated masks; "
               f"{report['frames_without_masks']} of {report['frames']} frames without any mask")
-        if det["domain_warning"]:
-            print("PRIVACY WARNING: " + det["domain_warning"])
+        if det["privacy_warning"]:
+            print("PRIVACY WARNING: " + det["privacy_warning"])
     print(f"filtered sequence written to {out_dir}")
     return 0

@@ -1,0 +1,97 @@
+"""Real training frames for the detector: hand-drawn keyframe boxes carried to neighbouring frames.
+
+Command::
+
+    python train/real_labels.py --synthetic DIR/SPLIT --out DIR [--window 3] [--repeat 3]
+
+``train/data/real_boxes.json`` holds boxes the developers drew by eye on keyframes of the real
+frames that ``../shared`` allows training on (``data/real/kitti_raw_a`` and the KITTI odometry
+``seq1`` and ``00``; never the evaluation sets ``kitti_object``, ``kitti_raw_b``,
+``nuscenes_front``), with no detector involved. Each keyframe's boxes are carried to the
+``--window`` frames before and after it by dense optical flow
+(:func:`privslam_jax.detect.temporal.box_flow`, frame by frame), and those frames are written as
+the YOLO split ``OUT/{images,labels}/real``. ``OUT/{images,labels}/mix`` then links every frame of
+the synthetic split and ``--repeat`` copies of each real frame. Train with
+``train/detector.py --data OUT --split mix``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def main(argv: list[str] | None = None) -> int:
+    import cv2
+
+    from privslam_jax._shared import shared_dir
+    from privslam_jax.data.images import read_rgb8, write_image_file
+    from privslam_jax.data.yolo import write_yolo_labels
+    from privslam_jax.detect.temporal import box_flow, dense_flow, flow_grey
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--synthetic", type=Path, required=True, help="synthetic YOLO split to mix in: ROOT/SPLIT")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--window", type=int, default=3, help="frames before and after each keyframe that get its boxes")
+    p.add_argument("--repeat", type=int, default=3, help="links per real frame in the mix split")
+    p.add_argument("--boxes", type=Path, default=ROOT / "train" / "data" / "real_boxes.json")
+    a = p.parse_args(argv)
+    shared = shared_dir()
+    if shared is None:
+        raise SystemExit("needs ../shared (the real training frames); set PRIVSLAM_SHARED")
+    boxes = json.loads(a.boxes.read_text())["boxes"]
+    img_dir, lab_dir = a.out / "images" / "real", a.out / "labels" / "real"
+    written: dict[str, int] = {}  # frame name -> distance to the keyframe that labelled it
+
+    def write(path: Path, img: np.ndarray, b: np.ndarray, cls: np.ndarray, dist: int) -> None:
+        name = f"{path.parent.parent.name}_{path.parent.name}_{path.stem}"
+        if written.get(name, a.window + 1) <= dist:
+            return  # a nearer keyframe labelled this frame
+        h, w = img.shape[:2]
+        c = np.clip(b, 0, [w, h, w, h])
+        keep = ((c[:, 2] - c[:, 0]) >= 4) & ((c[:, 3] - c[:, 1]) >= 4)
+        write_image_file(img_dir / f"{name}.png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        write_yolo_labels(lab_dir / f"{name}.txt", cls[keep], c[keep], w, h)
+        written[name] = dist
+
+    for rel, kb in boxes.items():
+        key = shared / rel
+        b0 = np.asarray(kb, np.float64).reshape(-1, 5)
+        cls = b0[:, 4].astype(np.int32)
+        first = read_rgb8(key)
+        write(key, first, b0[:, :4], cls, 0)
+        for step in (1, -1):
+            cur, prev = b0[:, :4], first
+            for dist in range(1, a.window + 1):
+                path = key.parent / f"{int(key.stem) + step * dist:0{len(key.stem)}d}.png"
+                if not path.is_file():
+                    break
+                img = read_rgb8(path)
+                flow = dense_flow(flow_grey(prev, 0.5), flow_grey(img, 0.5))
+                cur = np.array([box_flow(b, flow, 0.5) for b in cur]).reshape(-1, 4)
+                write(path, img, cur, cls, dist)
+                prev = img
+    print(f"wrote {len(written)} real frames ({len(boxes)} keyframes, window {a.window}) to {img_dir}")
+
+    syn_root, syn_split = a.synthetic.parent, a.synthetic.name
+    for kind in ("images", "labels"):
+        mix = a.out / kind / "mix"
+        mix.mkdir(parents=True, exist_ok=True)
+        for f in sorted((syn_root / kind / syn_split).iterdir()):
+            (mix / f.name).symlink_to(f.resolve())
+        for f in sorted((a.out / kind / "real").iterdir()):
+            for r in range(a.repeat):
+                (mix / f"real{r}_{f.name}").symlink_to(f.resolve())
+    print(f"wrote {a.out}/images/mix")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
