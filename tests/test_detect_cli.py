@@ -43,7 +43,7 @@ def test_detect_folder_writes_json_and_pngs(shared, tmp_path):
 def test_missing_weights_and_source_errors(tmp_path, capsys):
     img = tmp_path / "a.png"
     cv2.imwrite(str(img), np.zeros((32, 32, 3), np.uint8))
-    if not detect_cmd.EMBEDDED_WEIGHTS.is_file():
+    if not detect_cmd.EMBEDDED_REAL_WEIGHTS.is_file():
         assert _run(["detect", str(img), "--out", str(tmp_path / "o")]) == 2
         assert "pass --weights" in capsys.readouterr().err
     assert _run(["detect", str(tmp_path / "nope"), "--weights", "x.pt", "--out", str(tmp_path / "o")]) == 2

@@ -57,12 +57,12 @@ def test_embedded_detector_finds_ground_truth_objects(frames):
     assert false_pos <= max(2, total // 5), f"{false_pos} detections far from every ground-truth object"
 
 
-def test_cli_uses_embedded_detector_by_default(frames, tmp_path):
+def test_cli_uses_the_embedded_synthetic_detector(frames, tmp_path):
     f = frames[0]
     img = tmp_path / "frame.png"
     cv2.imwrite(str(img), cv2.cvtColor(np.round(f.image * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
     out = tmp_path / "out"
-    assert main(["detect", str(img), "--classes", "privacy", "--out", str(out)]) == 0
+    assert main(["detect", str(img), "--classes", "privacy", "--embedded", "synthetic", "--out", str(out)]) == 0
     data = json.loads((out / "detections.json").read_text())
     dets = data["images"][0]["detections"]
     gt_cls, gt_boxes = synthetic_labels(f)

@@ -11,7 +11,7 @@ import pytest
 from privslam_jax.cli import main
 from privslam_jax.commands.filter import check_detector_domain
 from privslam_jax.detect import Detector, DetectorConfig
-from privslam_jax.detect.predict import EMBEDDED_WEIGHTS
+from privslam_jax.detect.predict import EMBEDDED_REAL_WEIGHTS, EMBEDDED_WEIGHTS
 from privslam_jax.detect.weights import checkpoint_meta, save_checkpoint
 from privslam_jax.detect.yolov8 import YOLOv8Config, init_yolov8
 
@@ -44,11 +44,26 @@ def test_checkpoint_meta_round_trip_and_old_files(tmp_path):
         checkpoint_meta(tmp_path / "missing.npz")
 
 
-def test_embedded_detector_states_its_domain_and_real_recall():
-    meta = checkpoint_meta(EMBEDDED_WEIGHTS)
-    assert meta["domain"] in ("synthetic", "real")
+@pytest.mark.parametrize("path,domain", [(EMBEDDED_WEIGHTS, "synthetic"), (EMBEDDED_REAL_WEIGHTS, "real")])
+def test_embedded_detectors_state_their_domain_and_real_recall(path, domain):
+    meta = checkpoint_meta(path)
+    assert meta["domain"] == domain
     rr = meta["card"]["real_recall"]
     assert 0 <= rr["recall"] <= 1 and rr["fp_per_image"] >= 0 and "table1b_real_recall.py" in rr["command"]
+
+
+def test_filter_picks_the_embedded_detector_for_the_frames(tmp_path):
+    """Without --detector: the real-frame detector on real frames (with its recall warning), the
+    synthetic-world one on a privslam synth output (no warning)."""
+    seq = _real_like_sequence(tmp_path / "real", synthetic=False)
+    with pytest.warns(UserWarning, match="PRIVACY WARNING.*misses people"):
+        assert main(["filter", str(seq), "--masks", "detect", "--method", "black", "--out", str(tmp_path / "o")]) == 0
+    report = json.loads((tmp_path / "o" / "sequences" / "s" / "filter_report.json").read_text())
+    assert report["detector"]["weights"] == str(EMBEDDED_REAL_WEIGHTS) and report["detector"]["domain"] == "real"
+    seq_syn = _real_like_sequence(tmp_path / "syn", synthetic=True)
+    assert main(["filter", str(seq_syn), "--masks", "detect", "--method", "black", "--out", str(tmp_path / "o2")]) == 0
+    report = json.loads((tmp_path / "o2" / "sequences" / "s" / "filter_report.json").read_text())
+    assert report["detector"]["weights"] == str(EMBEDDED_WEIGHTS) and report["detector"]["privacy_warning"] is None
 
 
 class _Fake:

@@ -10,7 +10,8 @@ annotated PNG per image in ``OUT/`` (same relative path, ``/`` → ``__``, suffi
 
 SOURCE may be an image file, a folder of images, or a sequence folder (KITTI layout: the images
 in ``image_2/``, else ``image_0/``). ``--weights`` takes our ``.npz`` checkpoint or an
-ultralytics ``.pt`` (zip or unzipped folder). ``--classes privacy`` keeps person, bicycle, car,
+ultralytics ``.pt`` (zip or unzipped folder); without it the embedded real-frame detector runs
+(``--embedded synthetic``: the synthetic-world one, for ``privslam synth`` frames). ``--classes privacy`` keeps person, bicycle, car,
 motorcycle, bus and truck and defaults ``--conf`` to the paper's 0.4; ``all`` (default) keeps
 every class with ultralytics' default 0.25.
 """
@@ -25,12 +26,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-__all__ = ["add_parser", "run", "list_images", "EMBEDDED_WEIGHTS"]
+__all__ = ["add_parser", "run", "list_images", "EMBEDDED_WEIGHTS", "EMBEDDED_REAL_WEIGHTS"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 EMBEDDED_WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "detector_yolov8n_privacy.npz"
-"""The embedded default detector (same path as ``privslam_jax.detect.EMBEDDED_WEIGHTS``; not imported
-from there to keep ``privslam --help`` free of JAX)."""
+"""The embedded synthetic-world detector (same path as ``privslam_jax.detect.EMBEDDED_WEIGHTS``; not
+imported from there to keep ``privslam --help`` free of JAX)."""
+EMBEDDED_REAL_WEIGHTS = EMBEDDED_WEIGHTS.with_name("detector_yolov8n_real.npz")
+"""The embedded real-frame detector (``privslam_jax.detect.EMBEDDED_REAL_WEIGHTS``)."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -38,7 +41,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("source", type=Path, help="image file, folder of images, or sequence folder")
     p.add_argument("--weights", type=Path, default=None,
-                   help="detector weights: our .npz checkpoint or an ultralytics .pt (default: embedded detector)")
+                   help="detector weights: our .npz checkpoint or an ultralytics .pt (default: an embedded detector)")
+    p.add_argument("--embedded", choices=("real", "synthetic"), default="real",
+                   help="which embedded detector without --weights: for real photographs (default) or for "
+                        "privslam synth frames")
     p.add_argument("--conf", type=float, default=None, help="confidence threshold (default 0.25; 0.4 with --classes privacy)")
     p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default 0.7)")
     p.add_argument("--imgsz", type=int, default=640, help="letterbox size, multiple of 32 (default 640)")
@@ -88,10 +94,10 @@ def run(args: argparse.Namespace) -> int:
 
     weights = args.weights
     if weights is None:
-        if not EMBEDDED_WEIGHTS.is_file():
-            raise ValueError(f"no embedded detector at {EMBEDDED_WEIGHTS}: pass --weights PATH "
+        weights = EMBEDDED_REAL_WEIGHTS if args.embedded == "real" else EMBEDDED_WEIGHTS
+        if not weights.is_file():
+            raise ValueError(f"no embedded detector at {weights}: pass --weights PATH "
                              "(an ultralytics .pt such as yolov8n.pt, or a privslam .npz checkpoint)")
-        weights = EMBEDDED_WEIGHTS
     classes = PRIVACY_CLASSES if args.classes == "privacy" else None
     conf = args.conf if args.conf is not None else (0.4 if args.classes == "privacy" else 0.25)
     config = DetectorConfig(imgsz=args.imgsz, conf=conf, iou=args.iou, classes=classes)

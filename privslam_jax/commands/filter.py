@@ -16,7 +16,8 @@ detections); with ground-truth masks, which exist for the left camera only, it i
 
 ``--masks gt`` uses the synthetic ground-truth instance masks (``masks/`` written by
 ``privslam synth``); ``detect`` runs the YOLOv8 detector (``--detector``: an ultralytics ``.pt``
-or our ``.npz``; default the embedded detector) with the paper's privacy preset (person, bicycle,
+or our ``.npz``; default the embedded detector made for the frames: the synthetic-world one on a
+``privslam synth`` output, the real-frame one elsewhere) with the paper's privacy preset (person, bicycle,
 car, motorcycle, bus, truck at confidence 0.4, ``--conf`` to change it) and masks its boxes;
 ``--tta`` and ``--propagate K`` raise recall (:mod:`privslam_jax.detect.temporal`). A detector
 whose checkpoint says it was trained on the synthetic world only is refused on a sequence that
@@ -57,7 +58,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, help="output root (sequences/<name> is created)")
     p.add_argument("--masks", choices=("gt", "detect"), default=None,
                    help="ground-truth synthetic masks or detections (default: gt when masks/ exists)")
-    p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz; default: the embedded detector)")
+    p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz; default: the embedded detector for the frames' domain)")
     p.add_argument("--model", type=Path, default=None,
                    help="EdgeConnect Inpainter .npz (for edgeconnect; default: the embedded checkpoint)")
     p.add_argument("--conf", type=float, default=None,
@@ -203,9 +204,12 @@ def filter_sequence(
         from privslam_jax.detect.temporal import PropagationConfig
 
         preset = PRIVACY_PRESET if conf is None else dataclasses.replace(PRIVACY_PRESET, conf=conf)
-        detector = Detector.embedded(preset) if detector_path is None else Detector.from_weights(detector_path, preset)
-        # privslam synth writes background/ (the object-free render); nothing else does.
-        mismatch = check_detector_domain(detector, seq.has_extra("background"), allow_domain_mismatch)
+        synthetic = seq.has_extra("background")  # privslam synth writes background/ (the object-free render)
+        if detector_path is not None:
+            detector = Detector.from_weights(detector_path, preset)
+        else:  # the embedded detector made for these frames
+            detector = Detector.embedded(preset, domain="synthetic" if synthetic else "real")
+        mismatch = check_detector_domain(detector, synthetic, allow_domain_mismatch)
         propagation = (PropagationConfig(window=propagate, high_conf=preset.conf, low_conf=min(0.1, preset.conf))
                        if propagate else None)
         report["detector"] = {"weights": detector.meta.get("path", "embedded"), "domain": detector.domain,

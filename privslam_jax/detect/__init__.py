@@ -3,6 +3,7 @@
 from privslam_jax.detect.decode import box_iou, decode_head, make_anchors, nms, non_max_suppression, scale_boxes
 from privslam_jax.detect.loss import LossConfig, detection_loss, task_aligned_assign, targets_to_padded
 from privslam_jax.detect.predict import (
+    EMBEDDED_REAL_WEIGHTS,
     EMBEDDED_WEIGHTS,
     PRIVACY_CLASSES,
     PRIVACY_PRESET,
@@ -25,6 +26,7 @@ from privslam_jax.detect.yolov8 import SCALES, YOLOv8, YOLOv8Config, count_param
 
 __all__ = [
     "EMBEDDED_WEIGHTS",
+    "EMBEDDED_REAL_WEIGHTS",
     "LossConfig",
     "detection_loss",
     "task_aligned_assign",

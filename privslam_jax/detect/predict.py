@@ -39,7 +39,7 @@ from privslam_jax.detect.yolov8 import STRIDES, YOLOv8, fuse_batchnorm
 from privslam_jax.types import Detections
 
 __all__ = ["DetectorConfig", "Detector", "Letterboxed", "letterbox", "PRIVACY_CLASSES", "PRIVACY_PRESET",
-           "EMBEDDED_WEIGHTS"]
+           "EMBEDDED_WEIGHTS", "EMBEDDED_REAL_WEIGHTS"]
 
 PRIVACY_CLASSES: tuple[int, ...] = (0, 1, 2, 3, 5, 7)
 """COCO ids of the privacy-sensitive classes: person, bicycle, car, motorcycle, bus, truck."""
@@ -79,7 +79,10 @@ PRIVACY_PRESET = DetectorConfig(conf=0.4, classes=PRIVACY_CLASSES)
 """The paper's privacy filter: person, bicycle, car, motorcycle, bus, truck at confidence 0.4."""
 
 EMBEDDED_WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "detector_yolov8n_privacy.npz"
-"""The embedded default detector (:meth:`Detector.embedded`; model card: docs/model_card_detector.md)."""
+"""The embedded synthetic-world detector (:meth:`Detector.embedded`; model card: docs/model_card_detector.md)."""
+
+EMBEDDED_REAL_WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "detector_yolov8n_real.npz"
+"""The embedded real-frame detector (``Detector.embedded(domain="real")``; docs/model_card_detector.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,16 +190,22 @@ class Detector:
         return cls(model, config, names, {"domain": meta["domain"], "card": meta["card"], "path": str(path)})
 
     @classmethod
-    def embedded(cls, config: DetectorConfig = PRIVACY_PRESET) -> "Detector":
-        """The detector shipped in the package (``privslam_jax/assets``, docs/model_card_detector.md).
+    def embedded(cls, config: DetectorConfig = PRIVACY_PRESET, domain: str = "synthetic") -> "Detector":
+        """A detector shipped in the package (``privslam_jax/assets``, docs/model_card_detector.md).
 
-        A YOLOv8n trained from scratch on the synthetic world: 8-class head whose ids are COCO ids
-        0-7 (it only ever saw person 0, bicycle 1, car 2, motorcycle 3, bus 5, truck 7), trained on
-        640×192 frames (use ``imgsz=640`` "rect"). Loads from the package, never from the network.
+        ``domain="synthetic"``: the YOLOv8n trained from scratch on the synthetic world (the
+        default of ``privslam run``); ``domain="real"``: the same network fine-tuned for real street
+        frames (synthetic frames with domain randomisation plus developer-labelled real frames).
+        Both have an 8-class head whose ids are COCO ids 0-7 (only person 0, bicycle 1, car 2,
+        motorcycle 3, bus 5, truck 7 were labelled) and want 640-wide "rect" letterboxing. Loaded
+        from the package, never from the network.
         """
-        if not EMBEDDED_WEIGHTS.is_file():
-            raise FileNotFoundError(f"no embedded detector shipped at {EMBEDDED_WEIGHTS}")
-        return cls.from_weights(EMBEDDED_WEIGHTS, config)
+        paths = {"synthetic": EMBEDDED_WEIGHTS, "real": EMBEDDED_REAL_WEIGHTS}
+        if domain not in paths:
+            raise ValueError(f"domain must be one of {sorted(paths)}, got {domain!r}")
+        if not paths[domain].is_file():
+            raise FileNotFoundError(f"no embedded {domain} detector shipped at {paths[domain]}")
+        return cls.from_weights(paths[domain], config)
 
     def with_config(self, config: DetectorConfig) -> "Detector":
         """The same network with other settings (shares the compiled forward)."""
