@@ -107,3 +107,20 @@ def test_synthetic_label_rule_against_plain_numpy():
                             instance_of_box=np.zeros(0, np.int32), instance_ids=np.zeros((4, 4), np.int32))
     c0, b0 = synthetic_labels(empty)
     assert c0.shape == (0,) and b0.shape == (0, 4)
+
+
+def test_link_mixed_split_oversamples_and_keeps_labels(tmp_path):
+    from privslam_jax.data.yolo import YoloDataset, link_mixed_split, write_yolo_labels
+
+    for split, n in (("a", 3), ("b", 2)):
+        (tmp_path / "images" / split).mkdir(parents=True)
+        for i in range(n):
+            cv2.imwrite(str(tmp_path / "images" / split / f"{split}{i}.png"), np.full((8, 8, 3), 10 * i, np.uint8))
+            write_yolo_labels(tmp_path / "labels" / split / f"{split}{i}.txt", np.array([i]), np.array([[1.0, 1, 5, 5]]), 8, 8)
+    assert link_mixed_split(tmp_path, "mix", [(tmp_path / "a", 1), (tmp_path / "b", 3)]) == 3 + 2 * 3
+    ds = YoloDataset(tmp_path, "mix")
+    assert len(ds) == 9
+    names = [p.name for p in ds.image_paths]
+    assert names.count("r0_b1.png") == 1 and "r2_b1.png" in names and "a0.png" in names
+    sample = ds[names.index("r2_b1.png")]
+    assert sample.class_ids.tolist() == [1] and np.allclose(sample.boxes, [[1, 1, 5, 5]], atol=1e-3)

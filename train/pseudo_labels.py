@@ -41,6 +41,7 @@ def runs_of(folder: Path) -> list[list[Path]]:
 
 def main(argv: list[str] | None = None) -> int:
     from privslam_jax._shared import shared_dir
+    from privslam_jax.data.yolo import link_mixed_split
     from privslam_jax.detect import PRIVACY_CLASSES, Detector, DetectorConfig
     from privslam_jax.detect.pseudo import PseudoLabelConfig, export_pseudo_yolo
 
@@ -63,16 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     n, labels, ignored = export_pseudo_yolo(det, runs, a.out, "real", PseudoLabelConfig(label_conf=a.label_conf))
     print(f"pseudo-labelled {n} real frames: {labels} labels, {ignored} regions painted grey")
 
-    syn_root, syn_split = a.synthetic.parent, a.synthetic.name
-    for kind in ("images", "labels"):
-        mix = a.out / kind / "mix"
-        mix.mkdir(parents=True, exist_ok=True)
-        for f in sorted((syn_root / kind / syn_split).iterdir()):
-            (mix / f.name).symlink_to(f.resolve())
-        for f in sorted((a.out / kind / "real").iterdir()):
-            for k in range(a.repeat):
-                (mix / f"real{k}_{f.name}").symlink_to(f.resolve())
-    print(f"wrote {a.out}/images/mix")
+    n_mix = link_mixed_split(a.out, "mix", [(a.synthetic, 1), (a.out / "real", a.repeat)])
+    print(f"wrote {a.out}/images/mix ({n_mix} images)")
     return 0
 
 

@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from privslam_jax._shared import shared_dir
     from privslam_jax.data.images import read_rgb8, write_image_file
-    from privslam_jax.data.yolo import write_yolo_labels
+    from privslam_jax.data.yolo import link_mixed_split, write_yolo_labels
     from privslam_jax.detect.temporal import box_flow, dense_flow, flow_grey
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -80,16 +80,8 @@ def main(argv: list[str] | None = None) -> int:
                 prev = img
     print(f"wrote {len(written)} real frames ({len(boxes)} keyframes, window {a.window}) to {img_dir}")
 
-    syn_root, syn_split = a.synthetic.parent, a.synthetic.name
-    for kind in ("images", "labels"):
-        mix = a.out / kind / "mix"
-        mix.mkdir(parents=True, exist_ok=True)
-        for f in sorted((syn_root / kind / syn_split).iterdir()):
-            (mix / f.name).symlink_to(f.resolve())
-        for f in sorted((a.out / kind / "real").iterdir()):
-            for r in range(a.repeat):
-                (mix / f"real{r}_{f.name}").symlink_to(f.resolve())
-    print(f"wrote {a.out}/images/mix")
+    n_mix = link_mixed_split(a.out, "mix", [(a.synthetic, 1), (a.out / "real", a.repeat)])
+    print(f"wrote {a.out}/images/mix ({n_mix} images)")
     return 0
 
 

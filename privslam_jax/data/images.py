@@ -18,26 +18,24 @@ from jaxtyping import Float, Shaped
 __all__ = ["read_image", "read_raw", "read_rgb8", "write_rgb", "write_uint16", "write_image_file", "check_unit_image"]
 
 
-def read_raw(path: str | os.PathLike) -> np.ndarray:
-    """Decode an image file as stored (``cv2.IMREAD_UNCHANGED``: dtype and channels as in the file, BGR order)."""
+def _decode(path: str | os.PathLike, flag: int) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"image not found: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = cv2.imread(str(path), flag)
     if img is None or img.size == 0:
         raise ValueError(f"cannot decode image (corrupt, truncated or not an image): {path}")
     return img
 
 
+def read_raw(path: str | os.PathLike) -> np.ndarray:
+    """Decode an image file as stored (``cv2.IMREAD_UNCHANGED``: dtype and channels as in the file, BGR order)."""
+    return _decode(path, cv2.IMREAD_UNCHANGED)
+
+
 def read_rgb8(path: str | os.PathLike) -> np.ndarray:
     """``(H, W, 3)`` uint8 RGB as ultralytics reads images (``cv2.imread`` colour, grey repeated)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"image not found: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None or img.size == 0:
-        raise ValueError(f"cannot decode image (corrupt, truncated or not an image): {path}")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(_decode(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
 def check_unit_image(image: np.ndarray, what: str = "image") -> np.ndarray:

@@ -31,6 +31,7 @@ __all__ = [
     "SynthLabelRule",
     "synthetic_labels",
     "export_synthetic_yolo",
+    "link_mixed_split",
 ]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -241,3 +242,23 @@ def export_synthetic_yolo(
             write_yolo_labels(lab_dir / f"{stem}.txt", cls, boxes, rgb8.shape[1], rgb8.shape[0])
             n += 1
     return n
+
+
+def link_mixed_split(root: str | os.PathLike, split: str, sources: "list[tuple[Path, int]]") -> int:
+    """Make the split ``root/{images,labels}/split`` of symbolic links to other YOLO splits.
+
+    ``sources`` lists ``(ROOT/SPLIT, repeat)``: every file of that split is linked ``repeat`` times
+    (``repeat > 1`` oversamples it; copies are named ``r<k>_<name>``). Returns the number of images.
+    """
+    n = 0
+    for kind in ("images", "labels"):
+        mix = Path(root) / kind / split
+        mix.mkdir(parents=True, exist_ok=True)
+        for src, repeat in sources:
+            src = Path(src)
+            for f in sorted((src.parent / kind / src.name).iterdir()):
+                for k in range(repeat):
+                    (mix / (f.name if repeat == 1 else f"r{k}_{f.name}")).symlink_to(f.resolve())
+                    n += kind == "images"
+    return n
+
