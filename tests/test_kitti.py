@@ -64,6 +64,18 @@ def test_times_txt_and_missing_poses(shared, tmp_path):
     assert seq.poses is None and seq.trajectory is None and seq[1].T_w_c is None
 
 
+@pytest.mark.parametrize("times,match", [("0.0\n0.2\n0.1\n", "line 3 is not after line 2"),
+                                         ("0.0\n0.1\n0.1\n", "line 3 is not after line 2"),
+                                         ("0.0\nnan\n0.2\n", "NaN or infinite timestamp at line 2")])
+def test_times_must_be_finite_and_increasing(shared, tmp_path, times, match):
+    """Issue 15 item 8: a non-monotonic times.txt made a trajectory the project's own reader rejected and an
+    ATE over 7 of 8 frames; NaN times failed only after the whole SLAM run."""
+    path = _copy_seq(shared, tmp_path)
+    (path / "times.txt").write_text(times)
+    with pytest.raises(ValueError, match=match):
+        KittiSequence(path)
+
+
 def test_missing_folder(tmp_path, shared):
     with pytest.raises(FileNotFoundError, match="nothere"):
         KittiSequence(tmp_path / "nothere")

@@ -193,6 +193,11 @@ class KittiSequence:
                 raise ValueError(f"{times_path}: cannot parse timestamps ({err})") from None
             if times.ndim != 1 or times.shape[0] < need:
                 raise ValueError(f"{times_path}: {times.shape[0]} timestamps but frame {need - 1} needs {need}")
+            if not np.isfinite(times).all():
+                raise ValueError(f"{times_path}: NaN or infinite timestamp at line {int(np.argmin(np.isfinite(times))) + 1}")
+            if (np.diff(times) <= 0).any():  # evo and our readers reject it, and ATE would silently skip frames
+                bad = int(np.argmax(np.diff(times) <= 0)) + 2
+                raise ValueError(f"{times_path}: timestamps must increase, line {bad} is not after line {bad - 1}")
             self.timestamps = times[self.frame_ids]
         else:
             self.timestamps = self.frame_ids.astype(np.float64) / fps
