@@ -55,6 +55,7 @@ from privslam_jax._shared import shared_dir  # noqa: E402
 from privslam_jax.data.images import read_rgb8  # noqa: E402
 from privslam_jax.data.kitti_object import read_kitti_object_labels  # noqa: E402
 from privslam_jax.detect import PRIVACY_CLASSES, Detector, DetectorConfig  # noqa: E402
+from privslam_jax.detect.decode import nms  # noqa: E402
 from privslam_jax.detect.temporal import PropagationConfig, dense_flow, flow_grey, box_flow, detect_sequence  # noqa: E402
 from privslam_jax.metrics.detection import RecallCounts, privacy_recall  # noqa: E402
 
@@ -111,8 +112,6 @@ def raw_a_reference(images: list[np.ndarray], runs: list[tuple[int, int]]) -> li
             keep = (bx[:, 3] - bx[:, 1]) >= 25
             bx, cl = bx[keep], cl[keep]
             # one reference per object: merge boxes of the same class that overlap (IoU > 0.5)
-            from privslam_jax.detect.decode import nms
-
             order = nms(bx + cl[:, None] * 1e4, np.arange(len(bx), 0, -1, dtype=np.float32), 0.5) if len(bx) else []
             bx, cl = bx[np.asarray(order, np.int64)], cl[np.asarray(order, np.int64)]
             acc = tuple((0, 1) if c in (0, 1) else (2, 7) if c in (2, 7) else (int(c),) for c in cl)

@@ -168,6 +168,13 @@ def test_write_failure_is_an_error_not_a_shorter_sequence(tmp_path, capsys):
         write_image_file(tmp_path / "b.png", img)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.png"]  # no temporary left behind
     assert read_image(target).shape == (H, W, 3)
+    from privslam_jax.data.files import write_atomic
+
+    write_atomic(tmp_path / "r.json", '{"a": 1}')
+    assert json.loads((tmp_path / "r.json").read_text()) == {"a": 1}
+    with pytest.raises(OSError, match="b.png"):
+        write_atomic(tmp_path / "b.png", b"x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.png", "r.json"]
 
     weights = _tiny_checkpoint(tmp_path / "real.npz", domain="real")
     seq = _real_like_sequence(tmp_path / "real", synthetic=False)

@@ -46,7 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     shared = shared_dir()
     if shared is None:
         raise SystemExit("needs ../shared (the real training frames); set PRIVSLAM_SHARED")
-    boxes = json.loads(a.boxes.read_text())["boxes"]
+    try:
+        boxes = json.loads(a.boxes.read_text())["boxes"]
+        if not all(isinstance(b, list) and all(len(x) == 5 for x in b) for b in boxes.values()):
+            raise ValueError("every entry must be a list of [x1, y1, x2, y2, class]")
+    except (ValueError, KeyError, AttributeError) as err:
+        raise SystemExit(f"{a.boxes}: not a keyframe box file ({err})") from None
     img_dir, lab_dir = a.out / "images" / "real", a.out / "labels" / "real"
     written: dict[str, int] = {}  # frame name -> distance to the keyframe that labelled it
 

@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from privslam_jax.data.files import write_atomic
 from privslam_jax.data.images import write_image_file
 
 __all__ = ["add_parser", "run", "filter_sequence", "check_detector_domain", "RECALL_WARNING_BELOW"]
@@ -294,8 +295,8 @@ def filter_sequence(
             _write_image(dst / f"{stem}.png", filtered, grey_input)
             if k == 0:
                 write_image_file(out_dir / "masks" / f"{stem}.png", _label_map(masks, ids, (h, w)))
-    (out_dir / "instance_classes.json").write_text(json.dumps({str(k): v for k, v in sorted(classes.items())}))
-    (out_dir / "filter_report.json").write_text(json.dumps(report, indent=1))
+    write_atomic(out_dir / "instance_classes.json", json.dumps({str(k): v for k, v in sorted(classes.items())}))
+    write_atomic(out_dir / "filter_report.json", json.dumps(report, indent=1))  # last: the run finished
     return out_dir
 
 

@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Shaped
 
+from privslam_jax.data.files import write_atomic
+
 __all__ = ["read_image", "read_raw", "read_rgb8", "write_rgb", "write_uint16", "write_image_file", "check_unit_image"]
 
 
@@ -108,15 +110,7 @@ def write_image_file(path: str | os.PathLike, img: np.ndarray) -> None:
     ok, buf = cv2.imencode(path.suffix or ".png", img)
     if not ok:
         raise OSError(f"OpenCV could not encode {path}")
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as f:
-            f.write(buf.tobytes())
-        os.replace(tmp, path)
-    except OSError as err:
-        tmp.unlink(missing_ok=True)
-        raise OSError(f"could not write {path}: {err.strerror or err}") from err
+    write_atomic(path, buf.tobytes())
 
 
 _write = write_image_file
