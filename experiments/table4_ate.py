@@ -130,7 +130,7 @@ def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.nd
 
 def _seq_job(path: str, mode: str, seed: int, n_frames: int | None, ignore_masked: bool = False) -> dict:
     """One run on a KITTI-layout sequence folder (module-level: picklable for the process pool)."""
-    from privslam_jax.commands.slam import load_sequence_frames, masked_regions
+    from privslam_jax.slam.outputs import load_sequence_frames, masked_regions
 
     seq, frames, n = load_sequence_frames(path, mode, n_frames)
     ignore = masked_regions(seq, n) if ignore_masked else None
@@ -191,7 +191,7 @@ def _kitti_tasks(cfg: Config) -> list[Task]:
 
 def _filtered(sequence: Path, out: Path, method: str, detector: Path | None) -> Path:
     """``sequence`` filtered with ``method`` on detections into ``out`` (reused when complete)."""
-    from privslam_jax.commands.filter import filter_sequence
+    from privslam_jax.inpaint.sequence import filter_sequence
 
     done = out / "sequences" / sequence.name
     if not (done / "instance_classes.json").is_file():  # written last: its presence means complete
@@ -202,7 +202,7 @@ def _filtered(sequence: Path, out: Path, method: str, detector: Path | None) -> 
 
 def _synth_tasks(cfg: Config, synth_dir: str | None) -> list[Task]:
     """Render each synthetic world once (if needed); one run per world and mode."""
-    from privslam_jax.commands.synth import write_kitti_sequence
+    from privslam_jax.data.kitti_write import write_kitti_sequence
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
     root = Path(synth_dir or Path(tempfile.gettempdir()) / f"privslam_table4_synth_{cfg.synth_frames}")

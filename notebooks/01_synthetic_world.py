@@ -37,7 +37,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from privslam_jax._shared import shared_dir
-from privslam_jax.commands.synth import COCO_NAMES, summarize_sequence, write_kitti_sequence
+from privslam_jax.data.kitti_write import COCO_NAMES, summarize_sequence, write_kitti_sequence
 from privslam_jax.data.kitti import KittiSequence
 from privslam_jax.data.synthetic import SynthConfig, make_sequence
 

@@ -4,9 +4,9 @@ Each stage is a plain function of the previous stage's files, so every intermedi
 disk under the run folder and can be inspected or fed to the matching ``privslam`` command:
 
 1. **data** – render the synthetic street world into a KITTI-layout sequence
-   (:func:`privslam_jax.commands.synth.write_kitti_sequence`) → ``OUT/original``.
+   (:func:`privslam_jax.data.kitti_write.write_kitti_sequence`) → ``OUT/original``.
 2. **privacy filter** (client side) – detect the privacy objects in the left images and remove
-   them (:func:`privslam_jax.commands.filter.filter_sequence`, a leak-free fill) → ``OUT/filtered``.
+   them (:func:`privslam_jax.inpaint.sequence.filter_sequence`, a leak-free fill) → ``OUT/filtered``.
    ``masks="detect"`` uses the embedded detector (or ``detector``), ``masks="gt"`` the renderer's
    instance masks. Because the ground truth is known, the report also says how much of each
    object the filter missed (:func:`mask_leak`): a detector miss is a privacy leak that no fill
@@ -66,7 +66,7 @@ class PipelineConfig:
 
 
 def _slam(seq_dir: Path, out: Path, progress: bool) -> tuple[dict[str, Any], Any]:
-    from privslam_jax.commands.slam import load_sequence_frames, write_outputs
+    from privslam_jax.slam.outputs import load_sequence_frames, write_outputs
     from privslam_jax.slam.system import SlamConfig, run_slam
 
     seq, frames, n = load_sequence_frames(seq_dir, "mono")
@@ -140,8 +140,8 @@ def _fmt(m: dict[str, Any], key: str) -> str:
 
 def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True) -> dict[str, Any]:
     """Run every stage on the synthetic default; returns a JSON-able report with a ``summary`` text."""
-    from privslam_jax.commands.filter import filter_sequence
-    from privslam_jax.commands.synth import sequence_stats, summarize_sequence, write_kitti_sequence
+    from privslam_jax.inpaint.sequence import filter_sequence
+    from privslam_jax.data.kitti_write import sequence_stats, summarize_sequence, write_kitti_sequence
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
     if config.frames < 1:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from privslam_jax.cli import main
-from privslam_jax.commands.filter import check_detector_domain
+from privslam_jax.inpaint.sequence import check_detector_domain
 from privslam_jax.detect import Detector, DetectorConfig
 from privslam_jax.detect.predict import EMBEDDED_REAL_WEIGHTS, EMBEDDED_WEIGHTS
 from privslam_jax.detect.weights import checkpoint_meta, save_checkpoint
@@ -131,7 +131,7 @@ def test_detector_default_meta_is_unknown():
 
 
 def test_filter_takes_a_plain_folder_of_frames(tmp_path):
-    from privslam_jax.commands.filter import _consecutive_runs
+    from privslam_jax.inpaint.sequence import _consecutive_runs
 
     assert _consecutive_runs(["0000", "0001", "0007", "0008", "0010"]) == [(0, 2), (2, 4), (4, 5)]
     assert _consecutive_runs(["a", "b"]) == [(0, 2)]

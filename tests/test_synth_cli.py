@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from privslam_jax.commands.synth import sequence_stats, summarize_sequence, write_kitti_sequence
+from privslam_jax.data.kitti_write import sequence_stats, summarize_sequence, write_kitti_sequence
 from privslam_jax.data.kitti import KittiSequence
 from privslam_jax.types import Camera, Trajectory
 
