@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from privslam_jax.cli import main
 from privslam_jax.data.images import read_image
@@ -68,3 +69,101 @@ def test_mask_leak_counts_objects_and_pixels_left_unmasked(tmp_path):
     assert leak["objects"] == 3
     assert abs(leak["objects_left_visible"] - 100 / 3) < 1e-9
     assert abs(leak["pixels_left_visible"] - 100 * (30 + 160) / 400) < 1e-9
+
+
+def _report_checks(out, report):
+    """report.md / report.html: every figure written, the HTML self-contained and equal to the PNGs, numbers from metrics.json."""
+    import base64
+    import re
+
+    md = (out / "report.md").read_text()
+    page = (out / "report.html").read_text()
+    pngs = sorted((out / "report_files").glob("*.png"))
+    assert {p.name for p in pngs} == {"frames.png", "trajectories.png", "map_lines.png", "attack.png"}
+    embedded = [base64.b64decode(s) for s in re.findall(r'src="data:image/png;base64,([^"]+)"', page)]
+    assert sorted(embedded) == sorted(p.read_bytes() for p in pngs)  # inline copies of the PNGs
+    assert all(b[:8] == b"\x89PNG\r\n\x1a\n" for b in embedded)
+    assert not re.search(r"(src|href)=\"(?!data:)", page) and "<script" not in page  # nothing fetched, no code
+    for p in pngs:
+        assert f"report_files/{p.name}" in md
+    for label in ("original", "filtered"):
+        m = json.loads((out / f"slam_{label}" / "metrics.json").read_text())
+        if "ate_rmse_sim3" in m:
+            assert f"| {label} | {m['tracked']}/{m['frames']} | {m['map_points']} | {m['ate_rmse_sim3']:.3f} |" in md
+    assert report["timings_s"] and all(v > 0 for v in report["timings_s"].values())
+
+
+def test_run_writes_a_report_a_person_reads(tmp_path):
+    out = tmp_path / "run"
+    assert main(["run", "--out", str(out), "--frames", "10", "--masks", "gt", "--filter", "telea", "--lift-seed", "1",
+                 "--quiet"]) == 0
+    _report_checks(out, json.loads((out / "report.json").read_text()))
+
+
+def test_report_html_renders_offline_in_a_headless_browser(tmp_path):
+    """Chromium (no network: every host name unresolvable) loads every figure of report.html."""
+    import shutil
+    import subprocess
+
+    browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    if browser is None:
+        pytest.skip("no headless Chromium (.ci/run installs the Debian package)")
+    out = tmp_path / "run"
+    assert main(["run", "--out", str(out), "--frames", "10", "--masks", "gt", "--filter", "gray", "--lift-seed", "1",
+                 "--quiet"]) == 0
+    page = (out / "report.html").read_text()
+    probe = ('<script>addEventListener("load",()=>{const i=[...document.images];document.body.setAttribute('
+             '"data-check",i.length+" "+i.filter(x=>x.complete&&x.naturalWidth>0).length+" "+'
+             'document.querySelectorAll("table").length)})</script>')
+    (tmp_path / "probe.html").write_text(page.replace("</body>", probe + "</body>"))
+    dom = subprocess.run(
+        [browser, "--headless", "--no-sandbox", "--disable-gpu", "--host-resolver-rules=MAP * ~NOTFOUND",
+         "--virtual-time-budget=10000", "--dump-dom", (tmp_path / "probe.html").as_uri()],
+        capture_output=True, text=True, timeout=120, check=True,
+    ).stdout
+    loaded = dom.split('data-check="')[1].split('"')[0].split()
+    assert loaded == ["4", "4", "3"], loaded  # 4 figures, all decoded; SLAM, privacy and timing tables
+
+
+def test_run_on_a_real_kitti_sequence(shared, tmp_path):
+    """``privslam run SEQUENCE`` on the first 12 real frames of KITTI seq1: ground truth used, report written."""
+    import shutil
+
+    src = shared / "data" / "kitti_odometry" / "sequences" / "seq1"
+    seq = tmp_path / "kitti" / "sequences" / "seq1"
+    (seq / "image_0").mkdir(parents=True)
+    for i in range(12):
+        shutil.copy(src / "image_0" / f"{i:06d}.png", seq / "image_0")
+    shutil.copy(src / "calib.txt", seq)
+    (tmp_path / "kitti" / "poses").mkdir()
+    poses = (shared / "data" / "kitti_odometry" / "poses" / "seq1.txt").read_text().splitlines()[:12]
+    (tmp_path / "kitti" / "poses" / "seq1.txt").write_text("\n".join(poses) + "\n")
+    out = tmp_path / "run"
+    with pytest.warns(UserWarning, match="PRIVACY WARNING"):  # the embedded real-frame detector's recall is low
+        assert main(["run", str(seq), "--out", str(out), "--filter", "telea", "--lift-seed", "2", "--quiet"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["synthetic"] is False and "leak" not in report["filter"]  # no ground-truth masks on real frames
+    assert report["filter"]["report"]["detector"]["domain"] == "real"  # the embedded real-frame detector was chosen
+    for label in ("original", "filtered"):
+        assert report["slam"][label]["frames"] == 12 and "ate_rmse_sim3" in report["slam"][label]
+    assert report["privacy"]["units"] == "m"
+    _report_checks(out, report)
+    # the input sequence is read, never written
+    assert sorted(p.name for p in seq.iterdir()) == ["calib.txt", "image_0"]
+
+
+def test_run_without_ground_truth_skips_the_metrics_with_a_note(tmp_path, capsys):
+    from privslam_jax.data.kitti_write import write_kitti_sequence
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence
+
+    seq_dir = write_kitti_sequence(make_sequence(SynthConfig(width=320, height=96, num_frames=8, seed=3)), tmp_path / "k",
+                                   progress=False)
+    (tmp_path / "k" / "poses" / "synth.txt").unlink()
+    out = tmp_path / "run"
+    assert main(["run", str(seq_dir), "--out", str(out), "--masks", "gt", "--filter", "gray", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "no ground-truth poses" in printed and "no ground truth: no ATE/RPE" in printed
+    report = json.loads((out / "report.json").read_text())
+    assert all("ate_rmse_sim3" not in m for m in report["slam"].values())
+    assert report["privacy"].get("units", "").startswith("SLAM units") or "skipped" in report["privacy"]
+    assert (out / "report.html").is_file()

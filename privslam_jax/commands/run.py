@@ -1,4 +1,4 @@
-"""``privslam run``: the main job on the embedded default (see :mod:`privslam_jax.pipeline`)."""
+"""``privslam run [SEQUENCE]``: the main job (see :mod:`privslam_jax.pipeline`)."""
 
 from __future__ import annotations
 
@@ -15,21 +15,31 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     d = PipelineConfig()
     p = subparsers.add_parser(
         "run",
-        help="the main job: synthetic sequence -> privacy filter -> SLAM -> line-cloud attack, with a report",
-        description="Render the embedded synthetic street sequence, remove its privacy objects, run SLAM on the "
-        "original and the filtered frames, lift the map to a random line cloud and attack it; every stage "
-        "writes its files under DIR and the summary is printed (also DIR/report.json). See privslam_jax/pipeline.py.",
+        help="the main job: sequence -> privacy filter -> SLAM -> line-cloud attack, with a report",
+        description="Remove the privacy objects of a sequence (the embedded synthetic street sequence, or SEQUENCE), "
+        "run SLAM on the original and the filtered frames, lift the map to a random line cloud and attack it; every "
+        "stage writes its files under DIR, the summary is printed and DIR/report.json is written last. "
+        "See privslam_jax/pipeline.py.",
     )
+    p.add_argument("sequence", nargs="?", default=None, metavar="SEQUENCE",
+                   help="a KITTI-layout sequence folder (…/sequences/<id> with calib.txt; ground truth from "
+                        "…/poses/<id>.txt when present). Default: render the embedded synthetic sequence")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder")
-    p.add_argument("--frames", type=int, default=d.frames, help=f"number of frames (default {d.frames})")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"world seed (default {d.seed})")
+    p.add_argument("--frames", type=int, default=d.frames, help=f"number of synthetic frames (default {d.frames})")
+    p.add_argument("--seed", type=int, default=d.seed, help=f"synthetic world seed (default {d.seed})")
     p.add_argument("--filter", default=d.filter_method, dest="filter_method",
                    help=f"privacy filter method (any of `privslam filter --method`; default {d.filter_method})")
     p.add_argument("--masks", choices=("detect", "gt"), default=d.masks,
                    help=f"filter masks from the detector or the renderer's ground truth (default {d.masks})")
-    p.add_argument("--detector", default=None, metavar="PATH", help="detector weights (default: the embedded detector)")
+    p.add_argument("--detector", default=None, metavar="PATH",
+                   help="detector weights (default: the embedded detector made for the frames' domain)")
+    p.add_argument("--conf", type=float, default=None, help="detection threshold (default 0.4)")
+    p.add_argument("--tta", action="store_true", help="detector test-time augmentation (recall-first)")
+    p.add_argument("--propagate", type=int, default=0, metavar="K",
+                   help="carry detections to the K frames before and after by optical flow (recall-first)")
     p.add_argument("--inpainter", default=None, metavar="PATH",
                    help="EdgeConnect checkpoint for --filter edgeconnect (default: the embedded inpainter)")
+    p.add_argument("--mode", choices=("mono", "stereo"), default=d.mode, help=f"SLAM input (default {d.mode})")
     p.add_argument("--lift-seed", type=int, default=None, help="fixed lift seed (experiments only; default: OS entropy)")
     p.add_argument("--no-slam", action="store_true", help="stop after the privacy filter")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -37,15 +47,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from privslam_jax.data.files import write_atomic
     from privslam_jax.pipeline import PipelineConfig, run_pipeline
+    from privslam_jax.report import write_report
 
     config = PipelineConfig(
-        frames=args.frames, seed=args.seed, filter_method=args.filter_method, masks=args.masks,
-        detector=args.detector, inpainter=args.inpainter, lift_seed=args.lift_seed,
+        sequence=None if args.sequence is None else str(args.sequence), frames=args.frames, seed=args.seed,
+        filter_method=args.filter_method, masks=args.masks, detector=args.detector, conf=args.conf, tta=args.tta,
+        propagate=args.propagate, inpainter=args.inpainter, mode=args.mode, lift_seed=args.lift_seed,
         slam=not args.no_slam, attack=not args.no_slam,
     )
     report = run_pipeline(config, args.out, progress=not args.quiet)
     print(report["summary"])
-    print(f"report: {Path(args.out) / 'report.json'}")
-    (Path(args.out) / "report.json").write_text(json.dumps({k: v for k, v in report.items() if k != "summary"}, indent=2) + "\n")
+    md, page = write_report(args.out, report)
+    print(f"read first: {page} (self-contained) or {md}")
+    path = Path(args.out) / "report.json"  # last: the run finished
+    write_atomic(path, json.dumps({k: v for k, v in report.items() if k != "summary"}, indent=2) + "\n")
+    print(f"report: {path}")
     return 0

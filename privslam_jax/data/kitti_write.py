@@ -174,5 +174,6 @@ def summarize_sequence(seq: Any, frames: list[Any] | None = None, title: str = "
         lines.append(f"  privacy objects in the world: {per_class(s['objects_per_class'])}")
     if s["visible_objects_per_class"]:
         lines.append(f"  objects seen (>= 1 box): {per_class(s['visible_objects_per_class'])}")
-    lines.append(f"  boxes: {per_class(s['boxes_per_class'])}; mean {s['mean_boxes_per_frame']:.2f} per frame")
+    if s["boxes_per_class"] or s["objects_per_class"]:  # sequences without labels have no box count to show
+        lines.append(f"  boxes: {per_class(s['boxes_per_class'])}; mean {s['mean_boxes_per_frame']:.2f} per frame")
     return "\n".join(lines)
