@@ -150,11 +150,12 @@ def test_without_edge_model_feeds_only_outside_edges(inpainter):
 
 
 def test_filter_frame_refuses_images_outside_the_convention(inpainter):
-    """Issue 15 item 8: uint8 input was filled with 0-1 values among 0-255 pixels."""
+    """Issue 15 item 8: uint8 input was filled with 0-1 values among 0-255 pixels (now uint8 is
+    accepted, tests/test_image_inputs.py); 0-255 floats, NaN and signed integers are refused."""
     img, _ = _frame()
     masks = np.zeros((1, 72, 160), bool)
     masks[0, 10:20, 10:30] = True
-    for bad, match in (((img * 255).astype(np.uint8), "dtype uint8"), (img * 255, "divide by 255"),
+    for bad, match in (((img * 255).astype(np.int32), "dtype int32"), (img * 255, "divide by 255"),
                        (np.where(img > 0.5, np.inf, img), "NaN or infinite")):
         with pytest.raises(ValueError, match=match):
             filter_frame(bad, masks, "black")

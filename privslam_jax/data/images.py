@@ -17,7 +17,8 @@ from jaxtyping import Float, Shaped
 
 from privslam_jax.data.files import write_atomic
 
-__all__ = ["read_image", "read_raw", "read_rgb8", "write_rgb", "write_uint16", "write_image_file", "check_unit_image"]
+__all__ = ["read_image", "read_raw", "read_rgb8", "write_rgb", "write_uint16", "write_image_file", "check_unit_image",
+           "as_unit_image", "like_input"]
 
 
 def _decode(path: str | os.PathLike, flag: int) -> np.ndarray:
@@ -57,6 +58,38 @@ def check_unit_image(image: np.ndarray, what: str = "image") -> np.ndarray:
     return img.astype(np.float32, copy=False)
 
 
+def as_unit_image(image: np.ndarray, what: str = "image") -> np.ndarray:
+    """Any image the library accepts, as float32 in ``[0, 1]``.
+
+    ``uint8`` is read as 0–255 and ``uint16`` as 0–65535 (divided by 255 or 65535, as
+    :func:`read_image` does for files); floating point must already lie in ``[0, 1]`` and be
+    finite (:func:`check_unit_image`). Anything else (signed integers, bool, objects) is refused
+    with a ``ValueError`` naming ``what``: 0–255 floats, NaN or negative pixels would otherwise be
+    processed silently wrong.
+    """
+    img = np.asarray(image)
+    if img.dtype == np.uint8:
+        return img.astype(np.float32) / np.float32(255.0)
+    if img.dtype == np.uint16:
+        return img.astype(np.float32) / np.float32(65535.0)
+    if not np.issubdtype(img.dtype, np.floating):
+        raise ValueError(f"{what} must be uint8 (0-255), uint16 (0-65535) or float in [0, 1], got dtype {img.dtype}")
+    return check_unit_image(img, what)
+
+
+def like_input(result: np.ndarray, original: np.ndarray) -> np.ndarray:
+    """``result`` (float in ``[0, 1]``) in the dtype of the caller's ``original`` image.
+
+    Integer inputs get integer outputs on the same scale (rounded, clipped); float inputs get
+    float32.
+    """
+    dtype = np.asarray(original).dtype
+    if dtype in (np.uint8, np.uint16):
+        top = 255.0 if dtype == np.uint8 else 65535.0
+        return np.clip(np.rint(np.asarray(result, np.float64) * top), 0, top).astype(dtype)
+    return np.asarray(result, np.float32)
+
+
 def read_image(path: str | os.PathLike, grey: bool = False) -> Float[np.ndarray, "H W *C"]:
     """Read an image as float32 in ``[0, 1]``: ``(H, W, 3)`` RGB, or ``(H, W)`` when ``grey``.
 
@@ -80,9 +113,9 @@ def read_image(path: str | os.PathLike, grey: bool = False) -> Float[np.ndarray,
     return (out.astype(np.float32) / np.float32(scale)).astype(np.float32)
 
 
-def write_rgb(path: str | os.PathLike, image: Float[np.ndarray, "H W 3"]) -> None:
-    """Write a float RGB image in ``[0, 1]`` as an 8-bit PNG (rounded, clipped)."""
-    img = np.clip(np.rint(np.asarray(image, np.float32) * 255.0), 0, 255).astype(np.uint8)
+def write_rgb(path: str | os.PathLike, image: Shaped[np.ndarray, "H W 3"]) -> None:
+    """Write an RGB image (float in ``[0, 1]`` or uint8, :func:`as_unit_image`) as an 8-bit PNG (rounded)."""
+    img = like_input(as_unit_image(image, f"image for {path}"), np.zeros(0, np.uint8))
     if img.ndim != 3 or img.shape[2] != 3:
         raise ValueError(f"write_rgb expects an (H, W, 3) image, got {img.shape}")
     _write(path, cv2.cvtColor(img, cv2.COLOR_RGB2BGR))

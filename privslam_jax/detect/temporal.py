@@ -74,9 +74,12 @@ class PropagationConfig:
 
 
 def flow_grey(image: np.ndarray, scale: float) -> np.ndarray:
+    """The uint8 grey image, resized by ``scale``, that :func:`dense_flow` takes (uint8 / uint16 / float ``[0, 1]`` input)."""
+    from privslam_jax.data.images import as_unit_image, like_input
+
     img = np.asarray(image)
     if img.dtype != np.uint8:
-        img = np.clip(np.rint(img.astype(np.float32) * 255), 0, 255).astype(np.uint8)
+        img = like_input(as_unit_image(img, "flow image"), np.zeros(0, np.uint8))
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.shape[-1] == 3 else img[..., 0]
     if scale != 1:

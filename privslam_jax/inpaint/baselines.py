@@ -31,7 +31,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from jaxtyping import Float
+from jaxtyping import Shaped
+
+from privslam_jax.data.images import as_unit_image, like_input
 
 __all__ = ["LEAKY_METHODS", "METHODS", "SAFE_METHODS", "fill"]
 
@@ -64,17 +66,21 @@ def fill(
     mask: np.ndarray,
     method: str,
     seed: int = 0,
-) -> Float[np.ndarray, "H W 3"]:
-    """Fill the masked region of ``image`` with baseline ``method`` (see module docstring)."""
+) -> Shaped[np.ndarray, "H W 3"]:
+    """Fill the masked region of ``image`` with baseline ``method`` (see module docstring).
+
+    ``image``: uint8, uint16 or float in ``[0, 1]`` (:func:`privslam_jax.data.images.as_unit_image`);
+    the result has its dtype."""
+    original = image
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image must be (H, W, 3) RGB, got shape {image.shape}")
     if mask.dtype != np.bool_ or mask.shape != image.shape[:2]:
         raise ValueError(f"mask must be bool {image.shape[:2]}, got {mask.dtype} {mask.shape}")
     if method not in METHODS:
         raise ValueError(f"unknown fill method {method!r}; choose from {', '.join(METHODS)}")
-    image = image.astype(np.float32, copy=False)
+    image = as_unit_image(image, "fill image")
     if not mask.any():
-        return image.copy()
+        return like_input(image.copy(), original)
     rng = np.random.default_rng(seed)
     shape = image.shape
     if method in ("black", "gray", "white"):
@@ -96,4 +102,4 @@ def fill(
         src = _pixelate(image, PIXEL_BLOCK)
     else:  # gaussian_add
         src = np.clip(image + rng.normal(0.0, NOISE_STD, shape), 0.0, 1.0).astype(np.float32)
-    return np.where(mask[..., None], src, image).astype(np.float32)
+    return like_input(np.where(mask[..., None], src, image).astype(np.float32), original)

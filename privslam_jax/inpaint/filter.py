@@ -23,9 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Shaped
 
-from privslam_jax.data.images import check_unit_image
+from privslam_jax.data.images import as_unit_image, like_input
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.crops import crop_box, extract, paste_back
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGenerator
@@ -161,8 +161,9 @@ class Inpainter:
         return model
 
     def inpaint_crop(self, rgb: np.ndarray, hole: np.ndarray) -> Float[np.ndarray, "S S 3"]:
-        """Inpaint one ``(S, S, 3)`` crop whose ``hole`` pixels are already zeroed."""
+        """Inpaint one ``(S, S, 3)`` crop whose ``hole`` pixels are already zeroed (float ``[0, 1]`` or uint8)."""
         cfg = self.config
+        rgb = as_unit_image(rgb, "inpaint_crop image")
         grey = to_grey(rgb)
         edges, edge_hole = safe_canny(grey, hole, sigma=cfg.sigma)
         f = lambda x: jnp.asarray(x, jnp.float32)[None, ..., None]  # noqa: E731
@@ -184,10 +185,13 @@ def filter_frame(
     *,
     inpainter: Inpainter | None = None,
     seed: int = 0,
-) -> Float[np.ndarray, "H W 3"]:
+) -> Shaped[np.ndarray, "H W 3"]:
     """Hide every object of ``masks (K, H, W)`` in ``image (H, W, 3)`` (see module docstring).
 
-    ``method="edgeconnect"`` without ``inpainter`` uses the embedded default checkpoint."""
+    ``image`` is uint8 (0–255), uint16 or float in ``[0, 1]``
+    (:func:`privslam_jax.data.images.as_unit_image`; anything else is refused) and the result has
+    its dtype. ``method="edgeconnect"`` without ``inpainter`` uses the embedded default checkpoint."""
+    original = image
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image must be (H, W, 3) RGB, got shape {image.shape}")
     h, w = image.shape[:2]
@@ -196,13 +200,13 @@ def filter_frame(
         raise ValueError(f"masks must be bool (K, {h}, {w}), got {masks.dtype} {masks.shape}")
     if method not in FILTER_METHODS:
         raise ValueError(f"unknown filter method {method!r}; choose from {', '.join(FILTER_METHODS)}")
-    image = check_unit_image(image, "filter_frame image")
+    image = as_unit_image(image, "filter_frame image")
     masks = masks[masks.any(axis=(1, 2))]
     if len(masks) == 0:
-        return image.copy()
+        return like_input(image.copy(), original)
     hidden = masks.any(axis=0)
     if method != "edgeconnect":
-        return baselines.fill(image, hidden, method, seed=seed)
+        return like_input(baselines.fill(image, hidden, method, seed=seed), original)
     if inpainter is None:
         inpainter = Inpainter.embedded()
     cfg = inpainter.config
@@ -218,4 +222,4 @@ def filter_frame(
         cnt[sl][own] += 1
     res = image.copy()
     res[hidden] = (acc[hidden] / cnt[hidden][:, None]).astype(np.float32)
-    return res
+    return like_input(res, original)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from jaxtyping import Bool, Float
+from jaxtyping import Bool, Float, Shaped
 
 __all__ = [
     "GREY_WEIGHTS",
@@ -108,11 +108,13 @@ def union(masks: Bool[np.ndarray, "K H W"], height: int, width: int) -> Bool[np.
     return masks.any(axis=0) if len(masks) else np.zeros((height, width), dtype=bool)
 
 
-def to_grey(image: Float[np.ndarray, "H W 3"]) -> Float[np.ndarray, "H W"]:
-    """Luminance with the skimage ``rgb2gray`` weights."""
-    _check_image(image)
+def to_grey(image: Shaped[np.ndarray, "H W 3"]) -> Float[np.ndarray, "H W"]:
+    """Luminance in ``[0, 1]`` with the skimage ``rgb2gray`` weights (uint8 / uint16 / float ``[0, 1]`` input)."""
+    from privslam_jax.data.images import as_unit_image
+
+    _check_image(np.asarray(image))
     w = np.asarray(GREY_WEIGHTS, dtype=np.float32)
-    return (image.astype(np.float32) @ w).astype(np.float32)
+    return (as_unit_image(image, "to_grey image") @ w).astype(np.float32)
 
 
 def fill_hole_from_outside(grey: np.ndarray, mask: np.ndarray, radius: int = 3) -> Float[np.ndarray, "H W"]:

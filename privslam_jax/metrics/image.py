@@ -1,6 +1,8 @@
 """Image-quality metrics for inpainting: PSNR, SSIM, L1 (optionally inside a mask), edge P/R.
 
-Images are float ``(H, W, C)`` (or ``(H, W)``) in [0, ``data_range``]; masks bool ``(H, W)``.
+Images are float ``(H, W, C)`` (or ``(H, W)``) in [0, ``data_range``], or uint8 (0–255) / uint16
+(0–65535) images, which are mapped onto [0, ``data_range``] (the dtype is static, so this holds
+under ``jit`` too); masks bool ``(H, W)``.
 
 * PSNR = 10·log10(R² / MSE), MSE over the masked pixels (all channels) when a mask is given.
 * SSIM (Wang, Bovik, Sheikh, Simoncelli, IEEE TIP 2004, eq. 13): local statistics with an
@@ -29,9 +31,16 @@ from jaxtyping import Array, Float
 __all__ = ["edge_precision_recall", "l1", "psnr", "ssim", "ssim_map"]
 
 
-def _prep(a: ArrayLike, b: ArrayLike, mask: ArrayLike | None) -> tuple[Array, Array, Array]:
-    a = jnp.asarray(a, jnp.float32)
-    b = jnp.asarray(b, jnp.float32)
+def _float(x: ArrayLike, data_range: float) -> Array:
+    x = jnp.asarray(x)
+    if x.dtype in (jnp.uint8, jnp.uint16):  # integer images: 0..max of the dtype -> [0, data_range]
+        return x.astype(jnp.float32) * jnp.float32(data_range / jnp.iinfo(x.dtype).max)
+    return x.astype(jnp.float32)
+
+
+def _prep(a: ArrayLike, b: ArrayLike, mask: ArrayLike | None, data_range: float = 1.0) -> tuple[Array, Array, Array]:
+    a = _float(a, data_range)
+    b = _float(b, data_range)
     if a.shape != b.shape or a.ndim not in (2, 3):
         raise ValueError(f"images must have equal (H, W[, C]) shapes, got {a.shape} and {b.shape}")
     if a.ndim == 2:
@@ -62,7 +71,7 @@ def psnr(
     a: ArrayLike, b: ArrayLike, mask: ArrayLike | None = None, data_range: float = 1.0
 ) -> Float[Array, ""]:
     """Peak signal-to-noise ratio in dB (inside ``mask``); ``inf`` for identical images."""
-    a, b, m = _prep(a, b, mask)
+    a, b, m = _prep(a, b, mask, data_range)
     mse = _masked_mean(jnp.square(a - b), m)
     return 10.0 * jnp.log10(data_range**2 / mse)
 
@@ -87,7 +96,7 @@ def ssim_map(
     a: ArrayLike, b: ArrayLike, data_range: float = 1.0, win: int = 11, sigma: float = 1.5
 ) -> Float[Array, "h w C"]:
     """SSIM map over the "valid" window centres, shape ``(H − win + 1, W − win + 1, C)``."""
-    a, b, _ = _prep(a, b, None)
+    a, b, _ = _prep(a, b, None, data_range)
     if min(a.shape[:2]) < win:
         raise ValueError(f"images must be at least {win}×{win} for SSIM, got {a.shape[:2]}")
     g = jnp.asarray(_gauss(win, sigma))
@@ -104,7 +113,7 @@ def ssim(
     a: ArrayLike, b: ArrayLike, mask: ArrayLike | None = None, data_range: float = 1.0
 ) -> Float[Array, ""]:
     """Mean SSIM (over windows centred inside ``mask``; see module docstring)."""
-    a, b, m = _prep(a, b, mask)
+    a, b, m = _prep(a, b, mask, data_range)
     s = ssim_map(a, b, data_range)
     r = 5  # (11 − 1) / 2
     mc = m[r: m.shape[0] - r, r: m.shape[1] - r]

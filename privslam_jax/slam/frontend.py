@@ -99,21 +99,23 @@ class Features:
 
 
 def to_gray_u8(image: np.ndarray) -> np.ndarray:
-    """Grey uint8 image from float ``[0, 1]`` HWC RGB / HW, or uint8 HW / HWC (RGB)."""
+    """Grey uint8 image from HW / HWC (RGB, or RGBA whose alpha is dropped) uint8, uint16 or float ``[0, 1]``.
+
+    Other dtypes and out-of-range floats are refused (:func:`privslam_jax.data.images.as_unit_image`).
+    """
+    from privslam_jax.data.images import as_unit_image, like_input
+
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[2] in (3, 4):
         img = img[..., :3]
-        if img.dtype != np.uint8:
-            img = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
-        return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
-    if img.ndim == 3 and img.shape[2] == 1:
+    elif img.ndim == 3 and img.shape[2] == 1:
         img = img[..., 0]
-    if img.ndim != 2:
-        raise ValueError(f"image must be HW or HWC with 1, 3 or 4 channels, got shape {img.shape}")
+    if img.ndim != 2 and img.shape[-1:] != (3,):
+        raise ValueError(f"image must be HW or HWC with 1, 3 or 4 channels, got shape {np.shape(image)}")
     if img.dtype != np.uint8:
-        if not np.issubdtype(img.dtype, np.floating):
-            raise ValueError(f"image dtype must be uint8 or float in [0, 1], got {img.dtype}")
-        img = np.clip(np.rint(np.nan_to_num(img) * 255.0), 0, 255).astype(np.uint8)
+        img = like_input(as_unit_image(img, "SLAM input image"), np.zeros(0, np.uint8))
+    if img.ndim == 3:
+        img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
     return np.ascontiguousarray(img)
 
 
