@@ -74,7 +74,7 @@ def extract(
     sl = (slice(box.v0, box.v1), slice(box.u0, box.u1))
     hid = hidden[sl].astype(np.float32)
     rgb = np.where(hidden[sl][..., None], np.float32(0), image[sl]).astype(np.float32)
-    rgb_s = _resize(rgb, size, size)
+    rgb_s = np.clip(_resize(rgb, size, size), 0.0, 1.0)  # float32 resampling can round to 1 + 1e-7
     hole_s = _resize(hid, size, size) > 0
     return np.where(hole_s[..., None], np.float32(0), rgb_s).astype(np.float32), hole_s
 
