@@ -141,9 +141,9 @@ class LineCloud:
     from, if any.
     """
 
-    directions: Float[Array, "N 3"]
-    """Unit directions ``d``."""
-    moments: Float[Array, "N 3"]
+    directions: Float[Array | np.ndarray, "N 3"]
+    """Unit directions ``d`` (float64 numpy arrays for float64 lines while JAX runs in float32)."""
+    moments: Float[Array | np.ndarray, "N 3"]
     """Moments ``m = p × d`` (orthogonal to ``d``)."""
 
     def __len__(self) -> int:

@@ -142,10 +142,49 @@ def test_repeated_points_share_one_line_and_the_attack_learns_nothing_more(lift)
         assert len(copies) == 7
         assert (d[copies] == d[copies[0]]).all() and (m[copies] == m[copies[0]]).all()
     # every line still passes through its point
-    assert np.asarray(point_line_distance(jnp.asarray(pts, jnp.float32), lines.directions, lines.moments)).max() < 1e-3
+    dist = point_line_distance(jnp.asarray(pts, jnp.float32), jnp.asarray(lines.directions, jnp.float32),
+                               jnp.asarray(lines.moments, jnp.float32))
+    assert np.asarray(dist).max() < 1e-3
     # unchanged for the distinct points: same lines as lifting the cloud without copies
     alone = lift(base, fixed_key(1))
     np.testing.assert_array_equal(np.asarray(alone.directions), d[:300])
     rec, _ = line2point(lines)
     err = np.linalg.norm(np.asarray(rec)[300:] - pts[300:], axis=1)
     assert np.median(err) > 0.01  # before the fix: ~1e-5 m for every repeated point
+
+
+@pytest.mark.parametrize("lift", [random_lift, paired_lift])
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3, 1e5, 1e7])
+def test_lines_pass_through_their_points_at_any_scale_and_survive_the_ply(lift, scale, tmp_path):
+    """Issue 15 item 4: float32 lifts of UTM-scale maps were off by metres, and their PLY unit
+    segments collapsed to points at 1e7 m (the file could not be read back). Reference: the
+    float64 point-to-line distance ``‖p × d − m‖`` for unit ``d``, relative to ``‖p‖``."""
+    from privslam_jax.data.ply import load_line_cloud, read_ply, save_line_cloud
+
+    rng = np.random.default_rng(int(np.log10(scale)) + 7)
+    pts = scale * (1.0 + rng.random((400, 3)))  # float64, offset from the origin like map coordinates
+
+    def rel(lines):
+        d = np.asarray(lines.directions, np.float64)
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        return (np.linalg.norm(np.cross(pts, d) - np.asarray(lines.moments, np.float64), axis=1)
+                / np.linalg.norm(pts, axis=1)).max()
+
+    lines = lift(pts, fixed_key(3))
+    assert np.asarray(lines.directions).dtype == np.float64
+    assert rel(lines) < 1e-12
+    save_line_cloud(tmp_path / "l.ply", lines)
+    assert read_ply(tmp_path / "l.ply")["vertex"]["x"].dtype == np.float64  # float64 in, float64 on disk
+    back = load_line_cloud(tmp_path / "l.ply")
+    assert np.asarray(back.directions).dtype == np.float64
+    assert rel(back) < 1e-6
+    # float32 input: float32 lines, still within float32 precision of their points
+    lines32 = lift(pts.astype(np.float32), fixed_key(3))
+    assert np.asarray(lines32.directions).dtype == np.float32
+    pts32 = pts.astype(np.float32).astype(np.float64)
+    d = np.asarray(lines32.directions, np.float64)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    assert (np.linalg.norm(np.cross(pts32, d) - np.asarray(lines32.moments, np.float64), axis=1)
+            / np.linalg.norm(pts32, axis=1)).max() < 1e-6
+    save_line_cloud(tmp_path / "l32.ply", lines32)  # readable at every scale (f8 on disk when far out)
+    assert len(load_line_cloud(tmp_path / "l32.ply")) == len(pts)

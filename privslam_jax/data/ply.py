@@ -242,7 +242,10 @@ def save_line_cloud(path: str | os.PathLike, lines: LineCloud, *, binary: bool =
     d = d / n
     start = np.cross(d, m / n)  # closest point to the origin (moment of the unit direction)
     seg = np.stack([start, start + d], axis=1).reshape(-1, 3)
-    ftype = "f4" if np.asarray(lines.directions).dtype == np.float32 else "f8"
+    # float32 only for float32 lines near the origin: at 1e4 m a float32 coordinate is already
+    # 1e-3 m coarse, and at 1e7 m the unit segment collapses to a point.
+    small = float(np.abs(seg).max(initial=0.0)) < 1e3
+    ftype = "f4" if np.asarray(lines.directions).dtype == np.float32 and small else "f8"
     vert = np.zeros(seg.shape[0], np.dtype([("x", ftype), ("y", ftype), ("z", ftype)]))
     for k, c in enumerate("xyz"):
         vert[c] = seg[:, k]
@@ -276,5 +279,7 @@ def load_line_cloud(path: str | os.PathLike) -> LineCloud:
         raise ValueError(f"{path}: segment {int(np.argmin(length[:, 0]))} has zero length")
     d = (b - a) / length
     m = np.cross(a, d)
+    if elements["vertex"]["x"].dtype == np.float64 and _float_dtype() != np.float64:  # keep a float64 file's precision
+        return LineCloud(directions=d, moments=m)
     fdt = _float_dtype()
     return LineCloud(directions=jnp.asarray(d.astype(fdt)), moments=jnp.asarray(m.astype(fdt)))

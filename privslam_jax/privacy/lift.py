@@ -20,6 +20,12 @@ would publish it exactly (an attack recovers it to 1e-5 m). Both lifts therefore
 line cloud then says only that the point was repeated. Near-duplicates (distinct but close
 points) are not merged.
 
+**Precision.** Lifts compute in float64 on the host and return the input's precision: a float64
+cloud (e.g. UTM coordinates, 1e7 m) gives float64 lines (numpy arrays when JAX runs in float32),
+so line ``i`` passes within ~1e-15 relative of point ``i`` at any scale, and
+:func:`privslam_jax.data.ply.save_line_cloud` keeps them float64; float32 clouds give float32 JAX
+arrays as before.
+
 **Keys.** A lift is only as secret as its randomness.  Without a key, the key is drawn from
 the operating system's entropy (``os.urandom``, 64 bits), so two default lifts of the same
 cloud differ; pass :func:`fixed_key` (an explicit seed) only for reproducible experiments.
@@ -52,15 +58,29 @@ def fixed_key(seed: int) -> jax.Array:
     return jax.random.key(int(seed), impl="threefry2x32")
 
 
-def _as_points(points: ArrayLike) -> jax.Array:
-    p = jnp.asarray(points)
+def _as_points(points: ArrayLike) -> tuple[np.ndarray, np.dtype]:
+    """``(points as float64 numpy, the float dtype to return)``, after checking shape and values."""
+    p = np.asarray(points)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {tuple(p.shape)}")
-    if not jnp.issubdtype(p.dtype, jnp.floating):
-        p = p.astype(jnp.result_type(float))
-    if not bool(jnp.all(jnp.isfinite(p))):
+    dtype = p.dtype if np.issubdtype(p.dtype, np.floating) and p.dtype.itemsize >= 4 else np.dtype(np.float64)
+    p = p.astype(np.float64)
+    if not np.all(np.isfinite(p)):
         raise ValueError("points contain NaN or inf")
-    return p
+    return p, np.dtype(dtype)
+
+
+def _lines(d: np.ndarray, m: np.ndarray, dtype: np.dtype) -> LineCloud:
+    """A line cloud in ``dtype``: JAX arrays where JAX holds that precision, float64 numpy otherwise."""
+    if dtype == np.float64 and jax.dtypes.canonicalize_dtype(np.float64) != np.float64:
+        return LineCloud(directions=d, moments=m)
+    return LineCloud(directions=jnp.asarray(d, dtype), moments=jnp.asarray(m, dtype))
+
+
+def _directions(key: jax.Array, n: int) -> np.ndarray:
+    """:func:`random_directions` for ``n`` lines, renormalised in float64."""
+    d = np.asarray(random_directions(key, jnp.zeros((n, 3), jnp.float32)), np.float64)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def unique_points(points: Float[ArrayLike, "N 3"]) -> tuple[np.ndarray, np.ndarray]:
@@ -91,15 +111,11 @@ def random_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
       points: ``(N, 3)`` points.
       key: a ``jax.random`` key; ``None`` (default) draws one from OS entropy.
     """
-    p = _as_points(points)
+    p, dtype = _as_points(points)
     key = entropy_key() if key is None else key
     first, inverse = unique_points(p)
-    if len(first) < p.shape[0]:  # repeated points share one line (module docstring)
-        lines = random_lift(p[jnp.asarray(first)], key)
-        idx = jnp.asarray(inverse)
-        return LineCloud(directions=lines.directions[idx], moments=lines.moments[idx])
-    d = random_directions(key, p)
-    return LineCloud(directions=d, moments=jnp.cross(p, d))
+    d = _directions(key, len(first))[inverse]  # repeated points share one line (module docstring)
+    return _lines(d, np.cross(p, d), dtype)
 
 
 def pairing(n: int, key: jax.Array) -> np.ndarray:
@@ -117,25 +133,24 @@ def paired_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
     Line ``i`` passes through point ``i`` and its partner (see :func:`pairing`); the direction
     is ``±(p_j − p_i)/‖p_j − p_i‖`` with a random sign, so the segment order leaks nothing.
     """
-    p = _as_points(points)
+    p, dtype = _as_points(points)
     key = entropy_key() if key is None else key
     first, inverse = unique_points(p)
     if len(first) < p.shape[0]:  # pair the distinct points; copies share their line
-        lines = paired_lift(p[jnp.asarray(first)], key)
-        idx = jnp.asarray(inverse)
-        return LineCloud(directions=lines.directions[idx], moments=lines.moments[idx])
+        lines = paired_lift(p[first], key)
+        d, m = np.asarray(lines.directions, np.float64), np.asarray(lines.moments, np.float64)
+        return _lines(d[inverse], m[inverse], dtype)
     k_pair, k_sign, k_dir = jax.random.split(key, 3)
     n = p.shape[0]
     partner = pairing(n, k_pair)
     lo = np.minimum(np.arange(n), np.where(partner < 0, n, partner))  # one representative per pair
     rep = np.where(partner < 0, np.arange(n), lo)
     other = np.where(partner < 0, np.arange(n), np.where(rep == np.arange(n), partner, np.arange(n)))
-    rep_j, other_j = jnp.asarray(rep), jnp.asarray(other)
-    diff = p[other_j] - p[rep_j]
-    length = jnp.linalg.norm(diff, axis=-1, keepdims=True)
-    rnd = random_directions(k_dir, p)[rep_j]
-    sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (n, 1)), 1.0, -1.0).astype(p.dtype)[rep_j]
+    diff = p[other] - p[rep]
+    length = np.linalg.norm(diff, axis=-1, keepdims=True)
+    rnd = _directions(k_dir, n)[rep]
+    sign = np.where(np.asarray(jax.random.bernoulli(k_sign, 0.5, (n, 1))), 1.0, -1.0)[rep]
     degenerate = length < 1e-9
-    d = jnp.where(degenerate, rnd, sign * diff / jnp.where(degenerate, 1.0, length))
+    d = np.where(degenerate, rnd, sign * diff / np.where(degenerate, 1.0, length))
     # the moment from the pair's representative point: both points get the bit-identical line
-    return LineCloud(directions=d, moments=jnp.cross(p[rep_j], d))
+    return _lines(d, np.cross(p[rep], d), dtype)
