@@ -34,7 +34,18 @@ def main(argv: list[str] | None = None) -> int:
     configure_xla()
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        if not getattr(args, "owns_out", False):
+            return int(args.func(args) or 0)
+        # Commands that own their --out folder: claim it (manifest.json, "complete": false), run,
+        # then mark it complete; a failed or killed run leaves "complete": false (privslam_jax/runs.py).
+        from privslam_jax.runs import claim_run_folder, complete_run_folder
+
+        arguments = {k: v for k, v in vars(args).items() if k not in ("func", "owns_out")}
+        manifest = claim_run_folder(args.out, args.command, arguments, overwrite=args.overwrite)
+        rc = int(args.func(args) or 0)
+        if rc == 0:
+            complete_run_folder(args.out, manifest)
+        return rc
     except (OSError, ValueError) as err:  # bad input or a failed write: clear message, no traceback
         print(f"privslam {args.command}: error: {err}", file=sys.stderr)
         return 2

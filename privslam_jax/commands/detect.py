@@ -50,7 +50,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--imgsz", type=int, default=640, help="letterbox size, multiple of 32 (default 640)")
     p.add_argument("--classes", choices=("privacy", "all"), default="all", help="class filter (default all)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.set_defaults(func=run)
+    p.add_argument("--overwrite", action="store_true",
+                   help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
+    p.set_defaults(func=run, owns_out=True)
 
 
 def list_images(source: Path) -> tuple[Path, list[Path]]:

@@ -43,7 +43,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--lift-seed", type=int, default=None, help="fixed lift seed (experiments only; default: OS entropy)")
     p.add_argument("--no-slam", action="store_true", help="stop after the privacy filter")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    p.add_argument("--overwrite", action="store_true",
+                   help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
+    p.set_defaults(func=run, owns_out=True)
 
 
 def run(args: argparse.Namespace) -> int:

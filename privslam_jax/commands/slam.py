@@ -54,7 +54,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ignore-masked", action="store_true",
                    help="extract no features where the sequence's masks/ is nonzero (on a `privslam filter` "
                         "output: the filled-in objects)")
-    p.set_defaults(func=run)
+    p.add_argument("--overwrite", action="store_true",
+                   help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
+    p.set_defaults(func=run, owns_out=True)
 
 
 def run(args: argparse.Namespace) -> int:

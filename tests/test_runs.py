@@ -1,0 +1,58 @@
+"""Run folders (issue 15 item 7): a manifest written first with "complete": false and rewritten
+last; a rerun into a folder holding another run refuses unless --overwrite; --overwrite never
+clears a folder privslam did not write."""
+
+import json
+
+import pytest
+
+from privslam_jax.cli import main
+from privslam_jax.runs import MANIFEST, claim_run_folder, complete_run_folder, read_manifest
+
+
+def test_manifest_is_incomplete_until_the_run_completes(tmp_path):
+    out = tmp_path / "r"
+    m = claim_run_folder(out, "slam", {"seed": 3})
+    on_disk = read_manifest(out)
+    assert on_disk["complete"] is False and on_disk["arguments"] == {"seed": 3}
+    assert {"python", "numpy", "jax"} <= set(on_disk["versions"])
+    complete_run_folder(out, m)
+    assert read_manifest(out)["complete"] is True
+
+
+def test_a_folder_with_another_run_is_refused_then_cleared_with_overwrite(tmp_path):
+    out = tmp_path / "r"
+    claim_run_folder(out, "slam", {})
+    (out / "trajectory.txt").write_text("old")
+    with pytest.raises(ValueError, match="earlier unfinished `privslam slam` run"):
+        claim_run_folder(out, "slam", {})
+    assert (out / "trajectory.txt").read_text() == "old"  # nothing lost by the refusal
+    claim_run_folder(out, "slam", {}, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST]
+
+
+def test_overwrite_never_clears_a_folder_privslam_did_not_write(tmp_path):
+    (tmp_path / "mine.txt").write_text("keep")
+    with pytest.raises(ValueError, match="holds no privslam run"):
+        claim_run_folder(tmp_path, "run", {}, overwrite=True)
+    assert (tmp_path / "mine.txt").read_text() == "keep"
+    with pytest.raises(ValueError, match="is a file"):
+        claim_run_folder(tmp_path / "mine.txt", "run", {})
+
+
+def test_cli_rerun_refuses_and_a_failed_run_stays_incomplete(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["run", "--out", str(out), "--frames", "4", "--masks", "gt", "--filter", "gray", "--no-slam", "--quiet"]
+    assert main(argv) == 0
+    manifest = json.loads((out / MANIFEST).read_text())
+    assert manifest["complete"] is True and manifest["command"] == "run" and manifest["arguments"]["frames"] == 4
+    report = (out / "report.json").read_text()
+    capsys.readouterr()
+    assert main(argv) == 2  # a second run into the same folder
+    assert "--overwrite" in capsys.readouterr().err
+    assert (out / "report.json").read_text() == report
+    # a run that fails after claiming the folder leaves "complete": false
+    bad = ["run", str(tmp_path / "missing"), "--out", str(out), "--overwrite", "--quiet"]
+    assert main(bad) == 2
+    assert json.loads((out / MANIFEST).read_text())["complete"] is False
+    assert not (out / "report.json").exists()  # cleared by --overwrite, never rewritten
