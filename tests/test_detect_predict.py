@@ -136,3 +136,16 @@ def test_detector_refuses_input_it_does_not_understand():
     nnx.update(model, jax.tree.map(lambda x: x * np.nan if x is leaf else x, params))
     with pytest.raises(ValueError, match="NaN or infinite"):
         Detector(model, DetectorConfig(imgsz=64))
+
+
+@pytest.mark.parametrize("mode", ["rect", "square"])
+@pytest.mark.parametrize("shape", [(1, 20000, 3), (20000, 1, 3), (3, 5000)])
+def test_extreme_aspect_ratios_letterbox_instead_of_a_cv2_error(shape, mode):
+    """Issue 15 item 9: a 1×20000 image made cv2.resize assert (0-pixel side) deep in the detector."""
+    from privslam_jax.detect.predict import letterbox
+
+    img = np.full(shape, 200, np.uint8)
+    lb = letterbox(img, 640, mode)
+    assert lb.image.shape[-1] == 3 and max(lb.image.shape[:2]) == 640 and min(lb.image.shape[:2]) >= 1
+    # the image content survives (not only padding): some pixel is the image's, not the grey 114
+    assert np.isclose(lb.image, 200 / 255, atol=1e-3).any()

@@ -129,18 +129,18 @@ def letterbox(image: np.ndarray, imgsz: int = 640, mode: str = "rect") -> Letter
     fill = 114 if img.dtype == np.uint8 else 114 / 255
     if mode == "rect":
         r = min(imgsz / h0, imgsz / w0)
-        new_w, new_h = round(w0 * r), round(h0 * r)
+        new_w, new_h = max(1, round(w0 * r)), max(1, round(h0 * r))  # a 1×20000 strip keeps one row
         dw, dh = (imgsz - new_w) % 32 / 2, (imgsz - new_h) % 32 / 2
         gains = (new_h / h0, new_w / w0)
     else:
         r0 = imgsz / max(h0, w0)  # load_image: long side to imgsz (ceil)
         if r0 != 1:
-            w1, h1 = min(math.ceil(w0 * r0), imgsz), min(math.ceil(h0 * r0), imgsz)
+            w1, h1 = max(1, min(math.ceil(w0 * r0), imgsz)), max(1, min(math.ceil(h0 * r0), imgsz))
             img = cv2.resize(img, (w1, h1), interpolation=cv2.INTER_LINEAR)
         h1, w1 = img.shape[:2]
         gains = (h1 / h0, w1 / w0)
         r = min(min(imgsz / h1, imgsz / w1), 1.0)  # LetterBox(scaleup=False)
-        new_w, new_h = round(w1 * r), round(h1 * r)
+        new_w, new_h = max(1, round(w1 * r)), max(1, round(h1 * r))
         dw, dh = (imgsz - new_w) / 2, (imgsz - new_h) / 2
     if (img.shape[1], img.shape[0]) != (new_w, new_h):
         img = cv2.resize(img, (new_w, new_h), interpolation=cv2.INTER_LINEAR)

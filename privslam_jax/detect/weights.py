@@ -217,8 +217,21 @@ def _open_archive(path: Path):
 
 
 def read_torch_checkpoint(path: str | Path) -> object:
-    """Unpickle a torch zip checkpoint (file or unzipped folder) safely; tensors → numpy."""
+    """Unpickle a torch zip checkpoint (file or unzipped folder) safely; tensors → numpy.
+
+    A damaged file (truncated or corrupt archive, a pickle that does not build) raises
+    ``ValueError`` naming the file, never a traceback from ``zipfile``, ``zlib`` or ``pickle``.
+    """
     path = Path(path)
+    try:
+        return _read_torch_checkpoint(path)
+    except (ValueError, OSError):  # ours (incl. UnsafeCheckpointError) or a missing file: already clear
+        raise
+    except Exception as err:  # noqa: BLE001 - a file-reader boundary: any library failure is a bad file
+        raise ValueError(f"{path}: not a readable torch checkpoint ({type(err).__name__}: {err})") from None
+
+
+def _read_torch_checkpoint(path: Path) -> object:
     read = _open_archive(path)
     try:
         order = read("byteorder").decode().strip()
