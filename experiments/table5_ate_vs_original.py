@@ -85,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from privslam_jax._shared import shared_dir
     from privslam_jax.data.files import write_atomic
+    from privslam_jax.report import markdown_table
     from privslam_jax.data.kitti_write import write_kitti_sequence
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
     from privslam_jax.inpaint.sequence import filter_sequence
@@ -147,8 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed (itself Sim(3)-aligned to the ground truth, so metres). The \"none\" row measures the run-to-run spread "
         "(0 by construction: same frames, same seed). KITTI frames were filtered with detections of the imported COCO "
         "YOLOv8n (`../shared/weights/yolov8n.pt`, an evaluation input), synthetic frames with the embedded detector.", "",
-        "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    text += ["| " + " | ".join(r) + " |" for r in rows]
+        *markdown_table(header, rows)]
     write_atomic(a.out, "\n".join(text) + "\n")
     print(f"wrote {a.out}")
     return 0

@@ -96,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from privslam_jax._shared import shared_dir
     from privslam_jax.data.files import write_atomic
+    from privslam_jax.report import markdown_table
     from privslam_jax.data.kitti import KittiSequence
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
@@ -119,8 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             "Means over the frames after a warm-up that compiles each stage, medians in brackets; SLAM is monocular, "
             "its mapping runs at keyframes and is spread over all frames here. Total = detect + fill + the SLAM run's "
             "wall time per frame on the filtered frames; plain SLAM = the wall time per frame on the original frames.", "",
-            "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    text += ["| " + " | ".join(r) + " |" for r in rows]
+            *markdown_table(header, rows)]
     write_atomic(a.out, "\n".join(text) + "\n")
     print(f"wrote {a.out}")
     return 0

@@ -27,7 +27,7 @@ import numpy as np
 
 from privslam_jax.data.files import write_atomic
 
-__all__ = ["write_report"]
+__all__ = ["markdown_table", "write_report"]
 
 _CLASS_NAMES = {0: "person", 1: "bicycle", 2: "car", 3: "motorcycle", 5: "bus", 7: "truck"}
 
@@ -197,6 +197,11 @@ def _attack(out: Path, path: Path, units: str) -> Path | None:
     return _save(fig, path)
 
 
+def markdown_table(header: list[str], rows: list[list[str]]) -> list[str]:
+    """The lines of a Markdown table."""
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + ["| " + " | ".join(r) + " |" for r in rows]
+
+
 def _f(v: Any, digits: int = 3) -> str:
     return "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{digits}f}"
 
@@ -265,9 +270,7 @@ def write_report(out: str | Path, report: dict[str, Any]) -> tuple[Path, Path]:
     for title, p in figures:
         md += [f"## {title}", "", f"![{title}]({p.relative_to(out).as_posix()})", ""]
     for title, header, rows in tables:
-        md += [f"## {title}", "", "| " + " | ".join(header) + " |",
-               "|" + "---|" * len(header)]
-        md += ["| " + " | ".join(r) + " |" for r in rows] + [""]
+        md += [f"## {title}", "", *markdown_table(header, rows), ""]
     md_path = out / "report.md"
     write_atomic(md_path, "\n".join(md))
 

@@ -1,19 +1,9 @@
 """``privslam slam SEQUENCE [--mode mono|stereo|rgbd] --out DIR``: run SLAM on a KITTI-layout sequence.
 
 SEQUENCE is a ``…/sequences/<id>`` folder (KITTI odometry, or what ``privslam synth`` writes);
-ground truth is read from ``…/poses/<id>.txt`` when present.  Writes into DIR:
-
-* ``trajectory.txt`` — TUM ``t x y z qx qy qz qw``, one line per frame (``times.txt`` stamps,
-  else frame/10 Hz); lost frames carry the motion-model prediction and are listed in metrics.json;
-* ``keyframes.txt`` — TUM poses of the keyframes;
-* ``map.ply`` — map points with their keyframe-observation counts;
-* ``metrics.json`` — ``frames``, ``tracked``, ``lost_frames``, ``fps`` (all stages),
-  ``tracking_fps`` (1 / median per-frame time of extraction + tracking, without local mapping),
-  per-stage median times,
-  events, and with ground truth ``ate_rmse_se3``, ``ate_rmse_sim3``, ``rpe_trans``, ``rpe_rot``
-  (evo semantics, :mod:`privslam_jax.metrics.trajectory`) and ``path_length``;
-* ``trajectory_xz.png`` (estimate aligned to the ground truth, top view) and
-  ``ate_over_time.png`` (per-frame position error after alignment; Sim(3) for mono, SE(3) else).
+ground truth is read from ``…/poses/<id>.txt`` when present. DIR receives ``trajectory.txt``
+(TUM, every frame), ``keyframes.txt``, ``map.ply``, ``metrics.json`` and two plots, described in
+:mod:`privslam_jax.slam.outputs`.
 
 Tracking loss is reported (metrics.json, stderr), never a crash.
 
