@@ -86,7 +86,8 @@ def like_input(result: np.ndarray, original: np.ndarray) -> np.ndarray:
     dtype = np.asarray(original).dtype
     if dtype in (np.uint8, np.uint16):
         top = 255.0 if dtype == np.uint8 else 65535.0
-        return np.clip(np.rint(np.asarray(result, np.float64) * top), 0, top).astype(dtype)
+        # float32 arithmetic, as every 8-bit writer here always did (float64 rounds some x.5 the other way)
+        return np.clip(np.rint(np.asarray(result, np.float32) * np.float32(top)), 0, top).astype(dtype)
     return np.asarray(result, np.float32)
 
 
