@@ -25,7 +25,8 @@ disk under the run folder and can be inspected or fed to the matching ``privslam
    evaluation only).
 
 ``privslam run`` then writes ``report.md`` / ``report.html`` (:func:`privslam_jax.report.write_report`)
-and, last, ``report.json``: a run folder without ``report.json`` did not finish.
+and ``report.json``; the folder's ``manifest.json`` says ``"complete": true`` only after all of it
+(:mod:`privslam_jax.runs`).
 """
 
 from __future__ import annotations

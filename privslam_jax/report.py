@@ -26,10 +26,9 @@ from typing import Any
 import numpy as np
 
 from privslam_jax.data.files import write_atomic
+from privslam_jax.data.kitti_write import COCO_NAMES
 
 __all__ = ["markdown_table", "write_report"]
-
-_CLASS_NAMES = {0: "person", 1: "bicycle", 2: "car", 3: "motorcycle", 5: "bus", 7: "truck"}
 
 
 def _plt():
@@ -71,7 +70,7 @@ def _frame_strip(original: Path, filtered: Path, path: Path, count: int = 3) -> 
             ys, xs = np.nonzero(ids == k)
             x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
             row[0].add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, color="yellow", lw=1))
-            row[0].text(x0, y0, _CLASS_NAMES.get(classes.get(int(k), -1), "?"), color="black", fontsize=7,
+            row[0].text(x0, y0, COCO_NAMES.get(classes.get(int(k), -1), "?"), color="black", fontsize=7,
                         backgroundcolor="yellow", va="bottom")
         row[1].imshow(ids > 0, cmap="gray", vmin=0, vmax=1)
         row[2].imshow(read_rgb8(filtered / left / name))

@@ -18,7 +18,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="the main job: sequence -> privacy filter -> SLAM -> line-cloud attack, with a report",
         description="Remove the privacy objects of a sequence (the embedded synthetic street sequence, or SEQUENCE), "
         "run SLAM on the original and the filtered frames, lift the map to a random line cloud and attack it; every "
-        "stage writes its files under DIR, the summary is printed and DIR/report.json is written last. "
+        "stage writes its files under DIR, the summary is printed, and DIR/report.html, report.md and report.json "
+        "are written; DIR/manifest.json says complete=true once all of it finished. "
         "See privslam_jax/pipeline.py.",
     )
     p.add_argument("sequence", nargs="?", default=None, metavar="SEQUENCE",
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     print(report["summary"])
     md, page = write_report(args.out, report)
     print(f"read first: {page} (self-contained) or {md}")
-    path = Path(args.out) / "report.json"  # last: the run finished
+    path = Path(args.out) / "report.json"
     write_atomic(path, json.dumps({k: v for k, v in report.items() if k != "summary"}, indent=2) + "\n")
     print(f"report: {path}")
     return 0
