@@ -5,10 +5,11 @@ from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from privslam_jax import PointCloud, Trajectory
 from privslam_jax.slam.outputs import write_outputs
-from privslam_jax.data.trajectory_io import read_tum_matrices
+from privslam_jax.data.trajectory_io import read_tum_matrices, write_kitti_matrices
 
 
 def _result(est, n):
@@ -53,3 +54,40 @@ def test_static_ground_truth_keeps_trajectory_map_and_reports_why(tmp_path, caps
     for name in ("keyframes.txt", "map.ply", "trajectory_xz.png", "ate_over_time.png"):
         assert (tmp_path / name).stat().st_size > 0
     assert capsys.readouterr().err == ""
+
+
+def test_outputs_are_written_atomically(tmp_path, monkeypatch):
+    """Issue 15: trajectory, pose, PLY and metrics files were written in place, so a run killed or a
+    disk filled mid-write left a truncated file that looked like a result. A write that fails at
+    the last step (the rename) now leaves the earlier file whole and no temporary behind."""
+    import os
+
+    from privslam_jax.data import files
+    from privslam_jax.data.ply import load_point_cloud
+    from privslam_jax.data.trajectory_io import read_kitti_matrices
+
+    n = 6
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n)
+    gt[:, 2, 3] = np.arange(n) ** 2 * 0.1
+    write_outputs(tmp_path, _result(gt, n), np.arange(n) * 0.1, gt, "mono", wall_time=1.0, plots=True)
+    write_kitti_matrices(tmp_path / "poses.txt", gt)
+    names = sorted(p.name for p in tmp_path.iterdir())
+    before = {name: (tmp_path / name).read_bytes() for name in names}
+
+    def disk_full(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(files.os, "replace", disk_full)
+    moved = gt.copy()
+    moved[:, 1, 3] += 5.0
+    with pytest.raises(OSError, match="No space left"):
+        write_outputs(tmp_path, _result(moved, n), np.arange(n) * 0.1, gt, "mono", wall_time=1.0, plots=True)
+    with pytest.raises(OSError, match="No space left"):
+        write_kitti_matrices(tmp_path / "poses.txt", moved)
+    monkeypatch.setattr(files.os, "replace", os.replace)
+    assert sorted(p.name for p in tmp_path.iterdir()) == names  # no temporaries left behind
+    assert {name: (tmp_path / name).read_bytes() for name in names} == before  # the earlier files are whole
+    np.testing.assert_allclose(read_tum_matrices(tmp_path / "trajectory.txt")[1], gt, atol=1e-6)
+    np.testing.assert_allclose(read_kitti_matrices(tmp_path / "poses.txt"), gt)
+    assert len(load_point_cloud(tmp_path / "map.ply")) == len(_result(gt, n).map)

@@ -20,6 +20,7 @@ Writing uses numpy structured arrays: ``tofile`` for binary, ``savetxt`` for ASC
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -27,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from privslam_jax.data.files import write_atomic
 from privslam_jax.types import LineCloud, PointCloud
 
 __all__ = [
@@ -72,7 +74,7 @@ def write_ply(path: str | os.PathLike, elements: dict[str, np.ndarray], *, binar
                 raise ValueError(f"element {name!r} field {field!r}: unsupported dtype {arr.dtype[field]}")
             header.append(f"property {_NP_TO_PLY[code]} {field}")
     header.append("end_header")
-    with open(path, "wb") as f:
+    with io.BytesIO() as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         for name, arr in elements.items():
             if binary:
@@ -81,6 +83,7 @@ def write_ply(path: str | os.PathLike, elements: dict[str, np.ndarray], *, binar
             elif arr.shape[0]:
                 fmts = ["%.17g" if arr.dtype[n].kind == "f" else "%d" for n in arr.dtype.names]
                 np.savetxt(f, arr, fmt=" ".join(fmts))
+        write_atomic(path, f.getvalue())
 
 
 def _parse_header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], int]:

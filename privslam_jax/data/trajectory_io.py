@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Float
 from scipy.spatial.transform import Rotation
 
+from privslam_jax.data.files import write_atomic
 from privslam_jax.types import Trajectory
 
 __all__ = [
@@ -141,11 +142,7 @@ def write_tum_matrices(path: PathLike, timestamps: Float[np.ndarray, " M"], T_w_
     if not np.all(np.isfinite(t)):
         raise ValueError("timestamps contain NaN or inf")
     rows = matrices_to_tum_rows(T)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
-        for ti, r in zip(t, rows):
-            f.write(" ".join([_fmt(ti)] + [_fmt(v) for v in r]) + "\n")
+    write_atomic(path, "".join(" ".join([_fmt(ti)] + [_fmt(v) for v in r]) + "\n" for ti, r in zip(t, rows)))
 
 
 def read_kitti_matrices(path: PathLike) -> Float[np.ndarray, "N 4 4"]:
@@ -159,11 +156,7 @@ def read_kitti_matrices(path: PathLike) -> Float[np.ndarray, "N 4 4"]:
 def write_kitti_matrices(path: PathLike, T_w_c: Float[np.ndarray, "N _ _"]) -> None:
     """Write ``T_w_c`` as a KITTI pose file (first three rows, row-major; round-trip exact)."""
     T = _check_matrices(T_w_c)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
-        for m in T[:, :3, :].reshape(-1, 12):
-            f.write(" ".join(_fmt(v) for v in m) + "\n")
+    write_atomic(path, "".join(" ".join(_fmt(v) for v in m) + "\n" for m in T[:, :3, :].reshape(-1, 12)))
 
 
 def load_tum(path: PathLike) -> Trajectory:

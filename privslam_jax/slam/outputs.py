@@ -23,10 +23,13 @@ output of ``privslam filter`` these are the regions it filled in, whose texture 
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
 import numpy as np
+
+from privslam_jax.data.files import write_atomic
 
 __all__ = ["load_sequence_frames", "masked_regions", "write_outputs"]
 
@@ -107,10 +110,16 @@ def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | No
             metrics["rpe_trans_sim3"] = float(rt.rmse)
         except ValueError as err:  # e.g. a straight ground-truth path: Umeyama is ill-posed; keep the outputs
             metrics["alignment_error"] = str(err)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    write_atomic(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     if plots:
         _plots(out, T, ts, gt[:n] if gt is not None else None, result.tracked, mode)
     return metrics
+
+
+def _save_png(fig, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    write_atomic(path, buf.getvalue())
 
 
 def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, tracked: np.ndarray, mode: str) -> None:
@@ -138,7 +147,7 @@ def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, trac
     ax.legend()
     ax.set_title("trajectory, top view (x–z)")
     fig.tight_layout()
-    fig.savefig(out / "trajectory_xz.png", dpi=120)
+    _save_png(fig, out / "trajectory_xz.png")
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(7, 3.5))
     if gt is not None:
@@ -152,5 +161,5 @@ def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, trac
         ax.text(0.5, 0.5, "no ground truth", ha="center", va="center", transform=ax.transAxes)
     ax.set_xlabel("time [s]")
     fig.tight_layout()
-    fig.savefig(out / "ate_over_time.png", dpi=120)
+    _save_png(fig, out / "ate_over_time.png")
     plt.close(fig)
