@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from privslam_jax.data.files import write_atomic
+from privslam_jax.data.files import write_atomic, write_figure
 from privslam_jax.data.kitti_write import COCO_NAMES
 
 __all__ = ["markdown_table", "write_report"]
@@ -41,8 +41,7 @@ def _plt():
 
 
 def _save(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    write_figure(fig, path)
     _plt().close(fig)
     return path
 
@@ -84,16 +83,10 @@ def _frame_strip(original: Path, filtered: Path, path: Path, count: int = 3) -> 
     return _save(fig, path)
 
 
-def _aligned(T: np.ndarray, gt: np.ndarray, sim3: bool) -> np.ndarray:
-    from privslam_jax.geometry.align import apply_similarity, umeyama_np
-
-    R, t, c = umeyama_np(T[:, :3, 3], gt[:, :3, 3], with_scale=sim3)
-    return apply_similarity(R, t, c, T)
-
-
 def _trajectories(out: Path, gt: np.ndarray | None, mode: str, path: Path) -> Path | None:
     """Top view and error over time of both SLAM runs (aligned to the ground truth when there is one)."""
     from privslam_jax.data.trajectory_io import read_tum_matrices
+    from privslam_jax.slam.outputs import align_to_ground_truth
 
     runs = {}
     for label in ("original", "filtered"):
@@ -111,7 +104,7 @@ def _trajectories(out: Path, gt: np.ndarray | None, mode: str, path: Path) -> Pa
         aligned = T
         if gt is not None and len(T) >= 3:
             try:
-                aligned = _aligned(T, gt[: len(T)], mode == "mono")
+                aligned = align_to_ground_truth(T, gt[: len(T)], mode == "mono")
             except ValueError:
                 pass
         top.plot(aligned[:, 0, 3], aligned[:, 2, 3], "-", color=colours[label], lw=1.3, label=f"SLAM on {label} frames")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["write_atomic"]
+__all__ = ["write_atomic", "write_figure"]
 
 
 def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
@@ -25,3 +25,12 @@ def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
     except OSError as err:
         tmp.unlink(missing_ok=True)
         raise OSError(f"could not write {path}: {err.strerror or err}") from err
+
+
+def write_figure(fig, path: str | os.PathLike, dpi: int = 100) -> None:
+    """Render a matplotlib figure to PNG in memory and :func:`write_atomic` it to ``path``."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    write_atomic(path, buf.getvalue())

@@ -23,15 +23,14 @@ output of ``privslam filter`` these are the regions it filled in, whose texture 
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
 import numpy as np
 
-from privslam_jax.data.files import write_atomic
+from privslam_jax.data.files import write_atomic, write_figure
 
-__all__ = ["load_sequence_frames", "masked_regions", "write_outputs"]
+__all__ = ["align_to_ground_truth", "load_sequence_frames", "masked_regions", "write_outputs"]
 
 
 def load_sequence_frames(path: str | Path, mode: str, max_frames: int | None = None):
@@ -64,7 +63,8 @@ def masked_regions(seq, n: int):
     return (seq.instance_ids(i) > 0 for i in range(n))
 
 
-def _aligned(est: np.ndarray, gt: np.ndarray, sim3: bool) -> np.ndarray:
+def align_to_ground_truth(est: np.ndarray, gt: np.ndarray, sim3: bool) -> np.ndarray:
+    """``(N, 4, 4)`` poses ``est`` moved by the Umeyama alignment of their positions onto ``gt``'s (Sim(3) if ``sim3``)."""
     from privslam_jax.geometry.align import apply_similarity, umeyama_np
 
     R, t, c = umeyama_np(est[:, :3, 3], gt[:, :3, 3], with_scale=sim3)
@@ -116,12 +116,6 @@ def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | No
     return metrics
 
 
-def _save_png(fig, path: Path) -> None:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    write_atomic(path, buf.getvalue())
-
-
 def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, tracked: np.ndarray, mode: str) -> None:
     import matplotlib
 
@@ -130,7 +124,7 @@ def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, trac
 
     sim3 = mode == "mono"
     try:
-        est = _aligned(T, gt, sim3) if gt is not None and len(T) >= 3 else T
+        est = align_to_ground_truth(T, gt, sim3) if gt is not None and len(T) >= 3 else T
     except ValueError:  # degenerate alignment (straight path): plot the estimate as it is
         est = T
     fig, ax = plt.subplots(figsize=(6, 6))
@@ -147,7 +141,7 @@ def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, trac
     ax.legend()
     ax.set_title("trajectory, top view (x–z)")
     fig.tight_layout()
-    _save_png(fig, out / "trajectory_xz.png")
+    write_figure(fig, out / "trajectory_xz.png", dpi=120)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(7, 3.5))
     if gt is not None:
@@ -161,5 +155,5 @@ def _plots(out: Path, T: np.ndarray, ts: np.ndarray, gt: np.ndarray | None, trac
         ax.text(0.5, 0.5, "no ground truth", ha="center", va="center", transform=ax.transAxes)
     ax.set_xlabel("time [s]")
     fig.tight_layout()
-    _save_png(fig, out / "ate_over_time.png")
+    write_figure(fig, out / "ate_over_time.png", dpi=120)
     plt.close(fig)
