@@ -180,13 +180,26 @@ def _kitti_tasks(cfg: Config) -> list[Task]:
     name = "KITTI seq1 (51 frames)"
     tasks = [Task(name, path, "mono", None, s, base=name) for s in cfg.seeds]
     for method in cfg.filters:
-        out = Path(tempfile.gettempdir()) / "privslam_table4_filtered" / method / "kitti"
+        out = Path(tempfile.gettempdir()) / "privslam_table4_filtered" / _cache_name(method, "real") / "kitti"
         seq = _filtered(Path(path), out, method, shared / "weights/yolov8n.pt")
         tasks += [Task(f"{name}, {method} filter", str(seq), "mono", None, s, method, name) for s in cfg.seeds]
         if "mono" in cfg.masked_modes:
             tasks += [Task(f"{name}, {method} filter, masked features", str(seq), "mono", None, s, method, name, True)
                       for s in cfg.seeds]
     return tasks
+
+
+def _cache_name(method: str, domain: str) -> str:
+    """Folder name of a filter's cached output: EdgeConnect's also names the embedded checkpoint it
+    used (first 8 hex digits of its SHA-256), so a new checkpoint is never served stale frames."""
+    if method != "edgeconnect":
+        return method
+    import hashlib
+
+    from privslam_jax.inpaint.filter import EMBEDDED_INPAINTER, EMBEDDED_REAL_INPAINTER
+
+    weights = EMBEDDED_REAL_INPAINTER if domain == "real" else EMBEDDED_INPAINTER
+    return f"{method}-{hashlib.sha256(weights.read_bytes()).hexdigest()[:8]}"
 
 
 def _filtered(sequence: Path, out: Path, method: str, detector: Path | None) -> Path:
@@ -217,7 +230,7 @@ def _synth_tasks(cfg: Config, synth_dir: str | None) -> list[Task]:
         tasks += [Task(name, str(out / "sequences/synth"), mode, cfg.synth_frames, w, base=name)
                   for mode in cfg.synth_modes]
         for method in cfg.filters:
-            seq = _filtered(out / "sequences/synth", root / "filtered" / method / f"world{w}", method, None)
+            seq = _filtered(out / "sequences/synth", root / "filtered" / _cache_name(method, "synthetic") / f"world{w}", method, None)
             filtered += [Task(f"{name}, {method} filter", str(seq), mode, cfg.synth_frames, w, method, name)
                          for mode in cfg.filter_modes if mode in cfg.synth_modes]
             filtered += [Task(f"{name}, {method} filter, masked features", str(seq), mode, cfg.synth_frames, w,

@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
             complete_run_folder(args.out, manifest)
         return rc
     except (OSError, ValueError) as err:  # bad input or a failed write: clear message, no traceback
-        print(f"privslam {args.command}: error: {err}", file=sys.stderr)
+        message = " ".join(str(err).split())  # one line, whatever the message holds
+        print(f"privslam {args.command}: error: {message}", file=sys.stderr)
         return 2
 
 

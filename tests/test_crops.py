@@ -178,3 +178,42 @@ def test_extracted_crops_stay_in_the_unit_range():
             rgb, _ = extract(x, hidden, box, size)
             assert 0.0 <= rgb.min() and rgb.max() <= 1.0
     assert over
+
+
+def test_telea_prefill_feeds_g2_the_telea_fill_and_stays_private(tmp_path):
+    """prefill="telea": G2 sees cv2's Telea fill (radius 3, 8-bit, hole zeroed) inside the hole."""
+    import cv2
+    import jax.numpy as jnp
+
+    from privslam_jax.inpaint.masks import safe_canny, to_grey
+
+    cfg = InpainterConfig(width=4, num_residual_blocks=1, size=32, min_crop=16, prefill="telea")
+    inp = Inpainter.init(cfg, seed=1)
+    img, rng = _frame(6)
+    a = _box(72, 160, 20, 50, 40, 80)
+    rgb, hole = extract(img, a, crop_box(a, cfg.crop_pad, cfg.min_crop), cfg.size)
+    u8 = (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
+    u8[hole] = 0
+    telea = cv2.inpaint(u8, hole.astype(np.uint8), 3, cv2.INPAINT_TELEA).astype(np.float32) / 255
+    grey = to_grey(rgb)
+    edges, band = safe_canny(grey, hole, sigma=cfg.sigma)
+    eg, ig = inp.modules
+    f = lambda x: jnp.asarray(x, jnp.float32)[None, ..., None]  # noqa: E731
+    e = eg(jnp.concatenate([f(grey) * (1 - f(band)) + f(band), f(edges * (1 - band)), f(band)], axis=-1))
+    e_full = e * f(band) + f(edges * (1 - band))
+    x = np.where(hole[..., None], telea, rgb)[None]
+    y = ig(jnp.concatenate([jnp.asarray(x), e_full], axis=-1))
+    m = f(hole)
+    ref = np.asarray(y * m + jnp.asarray(rgb)[None] * (1 - m))[0]
+    np.testing.assert_allclose(inp.inpaint_crop(rgb, hole), ref, atol=1e-5)
+    white = Inpainter(*inp.modules, InpainterConfig(width=4, num_residual_blocks=1, size=32, min_crop=16))
+    assert not np.allclose(white.inpaint_crop(rgb, hole), ref, atol=1e-4)
+    # the whole filter stays independent of the hidden pixels, and the prefill survives save/load
+    out = filter_frame(img, a[None], "edgeconnect", inpainter=inp)
+    other = img.copy()
+    other[a] = rng.random((int(a.sum()), 3))
+    assert np.array_equal(filter_frame(other, a[None], "edgeconnect", inpainter=inp), out)
+    inp.save(tmp_path / "t.npz")
+    assert Inpainter.load(tmp_path / "t.npz").config == cfg
+    with pytest.raises(ValueError, match="prefill"):
+        InpainterConfig(prefill="blur")

@@ -38,3 +38,17 @@ def test_feature_matching_l1_gram():
     hole = np.zeros((2, 8, 8, 1))
     hole[:, :4] = 1
     np.testing.assert_allclose(float(L.l1_hole_loss(out, tgt, hole)), np.mean(np.abs(out - tgt)) / 0.5, rtol=1e-5)
+
+
+def test_masked_hole_loss_is_the_error_inside_the_hole_only():
+    from privslam_jax.inpaint.losses import masked_hole_loss
+
+    rng = np.random.default_rng(4)
+    out, tgt = rng.random((2, 8, 8, 3)), rng.random((2, 8, 8, 3))
+    hole = (rng.random((2, 8, 8, 1)) < 0.3).astype(np.float64)
+    inside = np.broadcast_to(hole, out.shape).astype(bool)
+    np.testing.assert_allclose(masked_hole_loss(out, tgt, hole), np.mean((out - tgt)[inside] ** 2), rtol=1e-5)
+    np.testing.assert_allclose(masked_hole_loss(out, tgt, hole, power=1), np.mean(np.abs(out - tgt)[inside]),
+                               rtol=1e-5)
+    changed = np.where(inside, out, 5.0)  # pixels outside the hole do not count
+    np.testing.assert_allclose(masked_hole_loss(changed, tgt, hole), masked_hole_loss(out, tgt, hole), rtol=1e-6)

@@ -55,6 +55,10 @@ def test_config_validation():
     assert CFG.stage_at(0) == "edge" and CFG.stage_at(1) == "inpaint" and CFG.stage_at(3) == "joint"
     with pytest.raises(ValueError, match="beyond"):
         CFG.stage_at(4)
+    with pytest.raises(ValueError, match="hole_loss"):
+        TrainConfig(hole_loss="l3")
+    with pytest.raises(ValueError, match="prefill"):
+        TrainConfig(prefill="blur")
 
 
 def test_edge_inpaint_stage_trains_only_g2_and_l1_only_skips_d2():
@@ -87,3 +91,39 @@ def test_edge_inpaint_stage_trains_only_g2_and_l1_only_skips_d2():
     t = np.arange(5)
     ref = 1e-5 + (1e-3 - 1e-5) * (1 + np.cos(np.pi * np.minimum(t, 4) / 4)) / 2
     np.testing.assert_allclose(lrs, ref, rtol=1e-3)
+
+
+def test_init_starts_from_the_given_generators(tmp_path):
+    from privslam_jax.inpaint.filter import Inpainter, InpainterConfig
+
+    init = Inpainter.init(InpainterConfig(width=4, num_residual_blocks=1, size=32), seed=11)
+    tr = train(CFG, _data, tmp_path / "ft", max_steps=0, init=init, progress=False)
+    img, hole = (v[0] for v in _data(3, 1))
+    np.testing.assert_array_equal(tr.inpainter().inpaint_crop(img, hole), init.inpaint_crop(img, hole))
+    cold = train(CFG, _data, tmp_path / "cold", max_steps=0, progress=False)  # seed 0 differs from 11
+    assert not np.array_equal(cold.inpainter().inpaint_crop(img, hole), init.inpaint_crop(img, hole))
+    with pytest.raises(ValueError, match="width"):
+        train(CFG, _data, tmp_path / "bad", max_steps=0, progress=False,
+              init=Inpainter.init(InpainterConfig(width=8, num_residual_blocks=1, size=32)))
+
+
+def test_residual_finetune_starts_exactly_at_the_prefill(tmp_path):
+    """A residual G2 started from a non-residual inpainter reproduces its Telea prefill (zeroed last layer)."""
+    import dataclasses
+
+    from privslam_jax.inpaint.baselines import fill
+    from privslam_jax.inpaint.filter import Inpainter, InpainterConfig
+
+    init = Inpainter.init(InpainterConfig(width=4, num_residual_blocks=1, size=32), seed=11)
+    cfg = dataclasses.replace(CFG, prefill="telea", residual=True)
+    tr = train(cfg, _data, tmp_path / "res", max_steps=0, init=init, progress=False)
+    inp = tr.inpainter()
+    assert inp.config.prefill == "telea" and inp.config.residual
+    img, hole = (v[0] for v in _data(3, 1))
+    zeroed = np.where(hole[..., None], np.float32(0), img)
+    np.testing.assert_allclose(inp.inpaint_crop(zeroed, hole), fill(zeroed, hole, "telea"), atol=1e-6)
+    inp.save(tmp_path / "r.npz")
+    again = Inpainter.load(tmp_path / "r.npz")
+    assert again.config == inp.config
+    trained = train(cfg, _data, tmp_path / "res2", max_steps=2, init=init, progress=False).inpainter()
+    assert not np.allclose(trained.inpaint_crop(zeroed, hole), fill(zeroed, hole, "telea"), atol=1e-4)

@@ -5,12 +5,19 @@ Thin entry point over :func:`privslam_jax.inpaint.train.train`. Data (one of):
 * ``--synth-frames N``: render N synthetic frames in-process (seed ``--synth-seed``) and train on
   crops around their privacy objects with the object-free renders as targets;
 * ``--sequence DIR``: a sequence written by ``privslam synth`` (``masks/`` + ``background/``);
-* ``--folder DIR``: any image folder, random box and irregular masks.
+* ``--folder DIR``: any image folder, random box and irregular masks;
+* ``--real DIR [DIR ...] --shapes MASKDIR``: real frames with object-shaped holes moved onto
+  other regions (answer known) and free-form holes, cropped as at inference; mixed with a
+  synthetic source above with ``--real-weight`` (or alone).
+
+``--init MODEL.npz`` fine-tunes from an inpainter (e.g. the embedded synthetic one).
 
 Examples::
 
     python train/inpaint.py --synth-frames 200 --workdir runs/inpaint --export runs/inpaint/model.npz
     python train/inpaint.py --folder ../shared/data/inpainting/psv/images --steps 50,50,20 --workdir runs/psv
+    python train/inpaint.py --real ../shared/data/real/kitti_raw_a/frames --shapes ../shared/data/real/kitti_raw_a/maskrcnn_masks \
+        --init privslam_jax/assets/inpainter_cpu16.npz --stages edge_inpaint:2000 --workdir runs/real
 
 Rerunning the same command resumes from ``WORKDIR/checkpoints``. Writes PNG sample grids to
 ``WORKDIR/samples`` and the losses to ``WORKDIR/log.csv``; ``--export`` writes the generators as
@@ -32,11 +39,21 @@ configure_xla()
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    src = p.add_mutually_exclusive_group(required=True)
+    src = p.add_mutually_exclusive_group()
     src.add_argument("--synth-frames", type=int, help="render this many synthetic frames")
     src.add_argument("--sequence", type=Path, help="sequence folder written by `privslam synth`")
     src.add_argument("--folder", type=Path, help="folder of images (random masks)")
     src.add_argument("--bank", type=Path, help="a crop bank .npz saved by an earlier run")
+    p.add_argument("--real", type=Path, nargs="+", help="real frames: folders or image files (holes from --shapes)")
+    p.add_argument("--shapes", type=Path, help="folder of binary object masks (255 = object) for --real")
+    p.add_argument("--shape-files", help="use only these mask files, as a slice A:B of the sorted list "
+                   "(keep the rest for evaluation)")
+    p.add_argument("--real-weight", type=float, default=0.7, help="share of real samples when mixed")
+    p.add_argument("--init", type=Path, help="fine-tune from this Inpainter .npz")
+    p.add_argument("--prefill", default="white", help="what G2 sees in the hole: white (official), telea, ns, gray")
+    p.add_argument("--residual", action="store_true", help="G2 predicts a correction of the prefill")
+    p.add_argument("--hole-loss", default="l1", choices=("l1", "l1_hole", "l2_hole"),
+                   help="G2's reconstruction loss: l1 (official, whole crop), or inside the hole only")
     p.add_argument("--synth-seed", type=int, default=0)
     p.add_argument("--synth-seeds", help="several worlds: comma list or range A-B (overrides --synth-seed); "
                    "--synth-frames frames of each")
@@ -62,10 +79,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--inpaint-adv-weight", type=float, default=0.1,
                    help="adversarial weight of G2 (official 0.1; 0 = L1 only, D2 skipped)")
     a = p.parse_args(argv)
+    if a.real and a.shapes is None:
+        p.error("--real needs --shapes")
+    if not a.real and all(x is None for x in (a.synth_frames, a.sequence, a.folder, a.bank)):
+        p.error("give a data source: --synth-frames, --sequence, --folder, --bank and/or --real")
 
     from tqdm import tqdm
 
-    from privslam_jax.inpaint.data import CropBank, FolderData
+    from privslam_jax.inpaint.data import CropBank, FolderData, Mixture, RealHoleData, image_paths, object_shapes
+    from privslam_jax.inpaint.filter import Inpainter
     from privslam_jax.inpaint.train import TrainConfig, train
 
     if a.stages:
@@ -83,16 +105,17 @@ def main(argv: list[str] | None = None) -> int:
                       lr=a.lr, inpaint_lr=a.inpaint_lr, inpaint_beta1=a.inpaint_beta1,
                       inpaint_lr_final=a.inpaint_lr_final,
                       inpaint_adv_weight=a.inpaint_adv_weight,
-                      checkpoint_every=a.checkpoint_every, sample_every=a.sample_every)
+                      prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every)
     a.workdir.mkdir(parents=True, exist_ok=True)
     bank_path = a.workdir / "crop_bank.npz"
+    data = None
     if a.folder is not None:
         data = FolderData(a.folder, a.size, seed=a.seed)
     elif a.bank is not None:
         data = CropBank.load(a.bank, seed=a.seed)
     elif bank_path.is_file():  # resume: reuse the crops extracted by the first run
         data = CropBank.load(bank_path, seed=a.seed)
-    else:
+    elif a.sequence is not None or a.synth_frames is not None:
         if a.sequence is not None:
             data = CropBank.from_kitti_layout(a.sequence, a.size, seed=a.seed, frame_stride=a.frame_stride)
         else:
@@ -105,7 +128,16 @@ def main(argv: list[str] | None = None) -> int:
                 for s in tqdm(seeds, desc="worlds", disable=len(seeds) == 1)], seed=a.seed)
         data.save(bank_path)
         print(f"{len(data)} object crops saved to {bank_path}")
-    trainer = train(cfg, data, a.workdir, max_steps=a.max_steps)
+    if a.real:
+        masks = image_paths(a.shapes)
+        if a.shape_files:
+            lo, hi = (int(x) if x else None for x in a.shape_files.split(":"))
+            masks = masks[lo:hi]
+        real = RealHoleData(image_paths(*a.real), object_shapes(masks), a.size, seed=a.seed)
+        print(f"real frames: {len(real.paths)}, object shapes: {len(real.shapes)} from {len(masks)} mask files")
+        data = real if data is None else Mixture([real, data], [a.real_weight, 1 - a.real_weight], seed=a.seed)
+    init = Inpainter.load(a.init) if a.init is not None else None
+    trainer = train(cfg, data, a.workdir, max_steps=a.max_steps, init=init)
     if a.export is not None:
         trainer.inpainter().save(a.export)
         print(f"inpainter written to {a.export}")

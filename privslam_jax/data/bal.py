@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from privslam_jax.errors import input_error
+
 __all__ = ["BALProblem", "read_bal", "bal_residuals", "bal_cost", "bal_to_opencv", "opencv_to_bal_cameras"]
 
 
@@ -57,52 +59,87 @@ class BALProblem:
         return int(self.obs_cam.shape[0])
 
 
-def _read_text(path: Path) -> str:
+MAX_BZ2_RATIO = 100
+"""A ``.bz2`` BAL file may decompress to at most ``MAX_BZ2_RATIO ×`` its size plus ``BZ2_SLACK`` bytes.
+
+Real problems compress about 3× (the shared KITTI problems: 2.7×); a larger ratio means a file that
+is mostly one repeated byte, i.e. not a BAL problem, and refusing it bounds the memory a small file
+can make the reader take."""
+BZ2_SLACK = 1 << 16
+_CHUNK = 1 << 16
+
+
+def _read_bytes(path: Path) -> bytes:
+    """The file's bytes (decompressed for ``.bz2``, at most ``MAX_BZ2_RATIO × size + BZ2_SLACK``)."""
     if not path.is_file():
         raise FileNotFoundError(f"BAL file not found: {path}")
-    try:
-        if path.suffix == ".bz2":
-            with bz2.open(path, "rt") as fh:
-                return fh.read()
-        return path.read_text()
-    except (OSError, EOFError, UnicodeDecodeError) as exc:  # bz2 raises OSError on corrupt data
-        raise ValueError(f"cannot read BAL file {path}: {exc}") from exc
+    if path.suffix != ".bz2":
+        return path.read_bytes()
+    limit = MAX_BZ2_RATIO * path.stat().st_size + BZ2_SLACK
+    chunks: list[bytes] = []
+    total = 0
+    with open(path, "rb") as raw, bz2.BZ2File(raw) as fh:
+        while True:
+            try:
+                chunk = fh.read(_CHUNK)
+            except (OSError, EOFError) as err:  # bz2: OSError for corrupt data, EOFError for a truncated stream
+                raise input_error(path, "corrupt or truncated bz2 stream", err) from err
+            if not chunk:
+                break
+            total += len(chunk)
+            if total > limit:
+                raise input_error(path, f"decompresses to more than {MAX_BZ2_RATIO} times its size: not a BAL problem")
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def _shown(token: bytes) -> str:
+    return repr(token[:40].decode("ascii", "replace")) + ("..." if len(token) > 40 else "")
 
 
 def read_bal(path: str | Path) -> BALProblem:
-    """Read a BAL problem (plain text or ``.bz2``); ``ValueError`` naming the file on any inconsistency."""
+    """Read a BAL problem (plain text or ``.bz2``).
+
+    ``FileNotFoundError`` for a missing file; :class:`~privslam_jax.errors.InputError` naming the file
+    for anything else: a corrupt or truncated bz2 stream (or one that decompresses more than
+    ``MAX_BZ2_RATIO``-fold), a header that is not three positive integers, a number of values that
+    differs from what the header promises (checked before any array is allocated, so an inflated
+    header costs nothing), non-numeric, NaN or infinite values, non-integer or out-of-range
+    observation indices.  Peak memory is a small multiple of the (decompressed) file size.
+    """
     path = Path(path)
-    tokens = _read_text(path).split()
+    tokens = _read_bytes(path).split()  # ASCII whitespace; bytes tokens parse with int()/float() like str
     if len(tokens) < 3:
-        raise ValueError(f"{path}: missing header 'n_cameras n_points n_observations'")
+        raise input_error(path, "missing header 'n_cameras n_points n_observations'")
     try:
         n_cam, n_pt, n_obs = (int(t) for t in tokens[:3])
     except ValueError as exc:
-        raise ValueError(f"{path}: header must be three integers, got {tokens[:3]}") from exc
+        raise input_error(path, f"header must be three integers, got {', '.join(_shown(t) for t in tokens[:3])}") from exc
     if min(n_cam, n_pt, n_obs) <= 0:
-        raise ValueError(f"{path}: header counts must be positive, got {n_cam} {n_pt} {n_obs}")
+        raise input_error(path, f"header counts must be positive, got {n_cam} {n_pt} {n_obs}")
     expected = 3 + 4 * n_obs + 9 * n_cam + 3 * n_pt
     if len(tokens) != expected:
         what = "truncated" if len(tokens) < expected else "has trailing data"
-        raise ValueError(
-            f"{path}: file {what}: header promises {n_obs} observations, {n_cam} cameras, {n_pt} points "
+        raise input_error(
+            path, f"file {what}: header promises {n_obs} observations, {n_cam} cameras, {n_pt} points "
             f"({expected} numbers), found {len(tokens)}"
         )
     try:
         obs = np.array(tokens[3 : 3 + 4 * n_obs], dtype=np.float64).reshape(n_obs, 4)
         params = np.array(tokens[3 + 4 * n_obs :], dtype=np.float64)
     except ValueError as exc:
-        raise ValueError(f"{path}: non-numeric value: {exc}") from exc
-    idx = obs[:, :2]
-    if np.any(idx != np.round(idx)):
-        raise ValueError(f"{path}: observation camera/point indices must be integers")
-    cam, pt = idx[:, 0].astype(np.int64), idx[:, 1].astype(np.int64)
-    if cam.min() < 0 or cam.max() >= n_cam:
-        raise ValueError(f"{path}: camera index out of range [0, {n_cam})")
-    if pt.min() < 0 or pt.max() >= n_pt:
-        raise ValueError(f"{path}: point index out of range [0, {n_pt})")
+        bad = next((i for i, t in enumerate(tokens) if not _is_number(t)), None)
+        where = "" if bad is None else f" {_shown(tokens[bad])} (value {bad + 1})"
+        raise input_error(path, f"non-numeric value{where}") from exc
     if not np.all(np.isfinite(obs)) or not np.all(np.isfinite(params)):
-        raise ValueError(f"{path}: contains NaN or inf")
+        raise input_error(path, "contains NaN or inf")
+    cam, pt = obs[:, 0], obs[:, 1]
+    if np.any(cam != np.round(cam)) or np.any(pt != np.round(pt)):
+        raise input_error(path, "observation camera/point indices must be integers")
+    if cam.min() < 0 or cam.max() >= n_cam:
+        raise input_error(path, f"camera index out of range [0, {n_cam})")
+    if pt.min() < 0 or pt.max() >= n_pt:
+        raise input_error(path, f"point index out of range [0, {n_pt})")
     return BALProblem(
         cameras=params[: 9 * n_cam].reshape(n_cam, 9),
         points=params[9 * n_cam :].reshape(n_pt, 3),
@@ -110,6 +147,14 @@ def read_bal(path: str | Path) -> BALProblem:
         obs_pt=pt.astype(np.int32),
         obs_xy=obs[:, 2:].copy(),
     )
+
+
+def _is_number(token: bytes) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
 
 
 def bal_residuals(problem: BALProblem, cameras: np.ndarray | None = None, points: np.ndarray | None = None) -> np.ndarray:

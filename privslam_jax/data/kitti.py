@@ -17,10 +17,12 @@ Extras written by ``privslam synth`` (read when present, ``None`` otherwise; see
 objects) and ``labels/%06d.txt`` (YOLO, normalised ``class cx cy w h``); with stereo also
 ``depth_3/`` and ``background_3/`` for the right camera.
 
-Frames are the PNG files of the left image folder in sorted order; frame *numbers* are their file
-stems.  Timestamps and poses are indexed by frame number, so a folder holding only some frames of
-a sequence (the shared ``00`` holds frames 0–4 and the full 4,541-pose ground truth) reads
-correctly; a pose or time file with fewer entries than the highest frame number needs is an error.
+Frames are the PNG files of the left image folder in order of their frame *numbers*, the file
+stems (digits only; two files for one number are an error).  Timestamps and poses are indexed by
+frame number, so a folder holding only some frames of a sequence (the shared ``00`` holds frames
+0–4 and the full 4,541-pose ground truth) reads correctly; a pose or time file with fewer entries
+than the highest frame number needs is an error.  Every file whose content is wrong raises
+:class:`~privslam_jax.errors.InputError` naming it (a missing file: ``FileNotFoundError``).
 
 Camera: intrinsics from the left camera's ``P`` row; the stereo baseline from the left/right pair,
 ``b = (P_left[0, 3] − P_right[0, 3]) / fx``.  KITTI's ground truth is the pose of camera 0; when
@@ -36,14 +38,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 
 import numpy as np
 
 from privslam_jax.data.images import read_image, read_raw
-from privslam_jax.data.trajectory_io import read_kitti_matrices
+from privslam_jax.data.trajectory_io import _check_fits_trajectory, read_kitti_matrices
 from privslam_jax.data.yolo import cxcywhn_to_xyxy, read_yolo_labels
+from privslam_jax.errors import InputError, input_error
 from privslam_jax.types import Camera, Trajectory
 
 __all__ = ["KittiFrame", "KittiSequence", "read_calib", "DEPTH_SCALE"]
@@ -57,8 +61,8 @@ _LEFT_RIGHT = {False: ("image_2", "image_3", "P2", "P3"), True: ("image_0", "ima
 def read_calib(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read a KITTI ``calib.txt``: ``{"P0": (3, 4), …}`` for every ``KEY: 12 numbers`` row.
 
-    ``FileNotFoundError`` for a missing file; ``ValueError`` naming ``file:line`` for a row that is
-    not ``KEY:`` followed by 12 finite numbers.
+    ``FileNotFoundError`` for a missing file; :class:`~privslam_jax.errors.InputError` naming
+    ``file:line`` for a row that is not ``KEY:`` followed by 12 finite numbers, or a key given twice.
     """
     path = Path(path)
     if not path.is_file():
@@ -68,16 +72,45 @@ def read_calib(path: str | os.PathLike) -> dict[str, np.ndarray]:
         if not line.strip():
             continue
         key, sep, rest = line.partition(":")
-        if not sep:
-            raise ValueError(f"{path}:{lineno}: expected 'KEY: 12 numbers', got {line.strip()[:60]!r}")
+        key = key.strip()
+        if not sep or not key:
+            raise InputError(f"{path}:{lineno}: expected 'KEY: 12 numbers', got {line.strip()[:60]!r}")
         try:
             vals = np.array([float(v) for v in rest.split()], dtype=np.float64)
         except ValueError:
-            raise ValueError(f"{path}:{lineno}: not a number in row {key.strip()!r}") from None
+            raise InputError(f"{path}:{lineno}: not a number in row {key[:30]!r}") from None
         if vals.size != 12 or not np.all(np.isfinite(vals)):
-            raise ValueError(f"{path}:{lineno}: row {key.strip()!r} must have 12 finite numbers, got {vals.size}")
-        out[key.strip()] = vals.reshape(3, 4)
+            raise InputError(f"{path}:{lineno}: row {key[:30]!r} must have 12 finite numbers, got {vals.size}")
+        if key in out:
+            raise InputError(f"{path}:{lineno}: row {key[:30]!r} appears twice")
+        out[key] = vals.reshape(3, 4)
     return out
+
+
+def _read_times(path: Path) -> np.ndarray:
+    """``times.txt``: one finite timestamp per line (``#`` comments and blank lines allowed), strictly
+    increasing; :class:`~privslam_jax.errors.InputError` naming the file and line otherwise."""
+    times: list[float] = []
+    prev = 0
+    try:
+        with open(path, encoding="utf-8") as f:
+            for lineno, line in enumerate(f, 1):
+                text = line.split("#", 1)[0].strip()
+                if not text:
+                    continue
+                try:
+                    t = float(text)
+                except ValueError:
+                    raise InputError(f"{path}:{lineno}: expected one timestamp per line, got {text[:60]!r}") from None
+                if not math.isfinite(t):
+                    raise InputError(f"{path}: NaN or infinite timestamp at line {lineno}")
+                if times and not t > times[-1]:  # evo and our readers reject it, and ATE would silently skip frames
+                    raise InputError(f"{path}: timestamps must increase, line {lineno} is not after line {prev}")
+                times.append(t)
+                prev = lineno
+    except UnicodeDecodeError as err:
+        raise input_error(path, "cannot parse timestamps (not UTF-8 text)", err) from err
+    return np.array(times, dtype=np.float64)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,18 +176,27 @@ class KittiSequence:
         self.fps = fps
         if colour is None:
             colour = (self.path / "image_2").is_dir()
+            if not colour and not (self.path / "image_0").is_dir():
+                raise input_error(self.path, "not a KITTI sequence folder (no image_0/ or image_2/ folder)")
         left_dir, right_dir, p_left, p_right = _LEFT_RIGHT[not colour]
         self.left_dir = self.path / left_dir
         self.right_dir = self.path / right_dir if stereo else None
         if not self.left_dir.is_dir():
             raise FileNotFoundError(f"image folder not found: {self.left_dir}")
-        self.image_paths = sorted(self.left_dir.glob("*.png"))
+        self.image_paths = sorted(p for p in self.left_dir.glob("*.png") if p.is_file())
         if not self.image_paths:
-            raise ValueError(f"no PNG frames in {self.left_dir}")
+            raise input_error(self.left_dir, "no PNG frames in the image folder")
+        for p in self.image_paths:
+            if not (p.stem.isascii() and p.stem.isdigit()):
+                raise input_error(p, f"frame files must be named by number (e.g. 000000.png) in {self.left_dir}")
+        self.image_paths.sort(key=lambda p: int(p.stem))  # by number: 9.png before 10.png (zero-padded: unchanged)
         try:
             self.frame_ids = np.array([int(p.stem) for p in self.image_paths], dtype=np.int64)
-        except ValueError:
-            raise ValueError(f"frame files must be named by number (e.g. 000000.png) in {self.left_dir}") from None
+        except OverflowError as err:
+            raise input_error(self.left_dir, "frame number too large", err) from err
+        if np.unique(self.frame_ids).size != self.frame_ids.size:
+            dup = np.unique(self.frame_ids, return_counts=True)
+            raise input_error(self.left_dir, f"two files for frame {int(dup[0][np.argmax(dup[1] > 1)])}")
         if self.right_dir is not None:
             if not self.right_dir.is_dir():
                 raise FileNotFoundError(f"stereo needs the right image folder: {self.right_dir}")
@@ -165,39 +207,35 @@ class KittiSequence:
         calib_path = self.path / "calib.txt"
         self.calib = read_calib(calib_path)
         if p_left not in self.calib:
-            raise ValueError(f"{calib_path}: no {p_left} row for {left_dir}")
+            raise InputError(f"{calib_path}: no {p_left} row for {left_dir}")
         P = self.calib[p_left]
         fx, fy, cx, cy = P[0, 0], P[1, 1], P[0, 2], P[1, 2]
         if not (fx > 0 and fy > 0):
-            raise ValueError(f"{calib_path}: {p_left} has non-positive focal length")
+            raise InputError(f"{calib_path}: {p_left} has non-positive focal length")
+        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
         baseline = None
-        if p_right in self.calib:
-            baseline = float((P[0, 3] - self.calib[p_right][0, 3]) / fx)
+        with np.errstate(all="ignore"):  # extreme rows overflow here; refused just below
+            if p_right in self.calib:
+                baseline = float((P[0, 3] - self.calib[p_right][0, 3]) / fx)
+            shift = -np.linalg.solve(K, P[:, 3])
+        if (baseline is not None and not math.isfinite(baseline)) or not np.all(np.isfinite(shift)):
+            raise InputError(f"{calib_path}: {p_left}/{p_right} give an infinite baseline or camera offset")
         if stereo and (baseline is None or not baseline > 0):
-            raise ValueError(f"{calib_path}: stereo needs a {p_right} row with a positive baseline")
+            raise InputError(f"{calib_path}: stereo needs a {p_right} row with a positive baseline")
         first = read_raw(self.image_paths[0])
         self.camera = Camera(
             fx=float(fx), fy=float(fy), cx=float(cx), cy=float(cy), width=int(first.shape[1]), height=int(first.shape[0]),
             baseline=baseline,
         )
-        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
         self._T_c0_cl = np.eye(4)
-        self._T_c0_cl[:3, 3] = -np.linalg.solve(K, P[:, 3])
+        self._T_c0_cl[:3, 3] = shift
 
         need = int(self.frame_ids.max()) + 1
         times_path = self.path / "times.txt"
         if times_path.is_file():
-            try:
-                times = np.loadtxt(times_path, dtype=np.float64, ndmin=1)
-            except ValueError as err:
-                raise ValueError(f"{times_path}: cannot parse timestamps ({err})") from None
-            if times.ndim != 1 or times.shape[0] < need:
-                raise ValueError(f"{times_path}: {times.shape[0]} timestamps but frame {need - 1} needs {need}")
-            if not np.isfinite(times).all():
-                raise ValueError(f"{times_path}: NaN or infinite timestamp at line {int(np.argmin(np.isfinite(times))) + 1}")
-            if (np.diff(times) <= 0).any():  # evo and our readers reject it, and ATE would silently skip frames
-                bad = int(np.argmax(np.diff(times) <= 0)) + 2
-                raise ValueError(f"{times_path}: timestamps must increase, line {bad} is not after line {bad - 1}")
+            times = _read_times(times_path)
+            if times.shape[0] < need:
+                raise InputError(f"{times_path}: {times.shape[0]} timestamps but frame {need - 1} needs {need}")
             self.timestamps = times[self.frame_ids]
         else:
             self.timestamps = self.frame_ids.astype(np.float64) / fps
@@ -210,19 +248,22 @@ class KittiSequence:
         if self.poses_path is not None:
             T = read_kitti_matrices(self.poses_path)
             if T.shape[0] < need:
-                raise ValueError(
+                raise InputError(
                     f"{self.poses_path}: {T.shape[0]} poses but {len(self.image_paths)} frames in {self.left_dir} "
                     f"(frame {need - 1} needs {need})"
                 )
-            self.poses = T[self.frame_ids] @ self._T_c0_cl[None]
+            with np.errstate(all="ignore"):
+                self.poses = T[self.frame_ids] @ self._T_c0_cl[None]
+            if not np.all(np.isfinite(self.poses)):
+                raise InputError(f"{self.poses_path}: poses overflow when moved to the {left_dir} camera")
 
         cls_path = self.path / "instance_classes.json"
         self.instance_classes: dict[int, int] = {}
         if cls_path.is_file():
-            try:
-                self.instance_classes = {int(k): int(v) for k, v in json.loads(cls_path.read_text()).items()}
-            except (ValueError, AttributeError, TypeError) as err:
-                raise ValueError(f"{cls_path}: expected {{\"instance id\": class id}} ({err})") from None
+            try:  # ValueError covers bad UTF-8 and bad JSON; RecursionError deep nesting; OverflowError inf
+                self.instance_classes = {int(k): int(v) for k, v in json.loads(cls_path.read_bytes()).items()}
+            except (ValueError, AttributeError, TypeError, RecursionError, OverflowError) as err:
+                raise input_error(cls_path, 'expected {"instance id": class id}', err) from err
 
     @staticmethod
     def from_root(root: str | os.PathLike, sequence: str, **kwargs) -> "KittiSequence":
@@ -234,8 +275,15 @@ class KittiSequence:
 
     @property
     def trajectory(self) -> Trajectory | None:
-        """Ground truth as a :class:`Trajectory` (JAX precision), or ``None`` without poses."""
-        return None if self.poses is None else Trajectory.from_matrices(self.timestamps, self.poses)
+        """Ground truth as a :class:`Trajectory` (JAX precision), or ``None`` without poses.
+
+        :class:`~privslam_jax.errors.InputError` when the poses or ``times.txt`` hold values beyond
+        that precision's range."""
+        if self.poses is None:
+            return None
+        _check_fits_trajectory(self.poses_path, self.poses)
+        _check_fits_trajectory(self.path / "times.txt", self.timestamps)  # frame / fps always fits
+        return Trajectory.from_matrices(self.timestamps, self.poses)
 
     def has_extra(self, name: str) -> bool:
         """Whether the synth extra folder ``name`` (``depth``, ``masks``, ``background``, ``labels``) exists."""
@@ -300,7 +348,10 @@ class KittiSequence:
             background = read_image(p, grey=self.grey)
         if (p := self._extra("labels", i, ".txt")) is not None:
             class_ids, n = read_yolo_labels(p)
-            boxes = cxcywhn_to_xyxy(n, self.camera.width, self.camera.height)
+            with np.errstate(over="ignore", invalid="ignore"):
+                boxes = cxcywhn_to_xyxy(n, self.camera.width, self.camera.height)
+            if not np.all(np.isfinite(boxes)):
+                raise InputError(f"{p}: box coordinates overflow in pixels")
         return KittiFrame(
             index=i,
             frame_id=int(self.frame_ids[i]),

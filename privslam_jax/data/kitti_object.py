@@ -16,9 +16,12 @@ a hit nor a false positive (:func:`privslam_jax.metrics.detection.privacy_recall
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
+
+from privslam_jax.errors import InputError, input_error
 
 __all__ = ["KittiObjectLabels", "read_kitti_object_labels", "KITTI_TO_COCO"]
 
@@ -46,24 +49,38 @@ class KittiObjectLabels:
 
 def read_kitti_object_labels(path: str | Path, min_height: float = 25.0, max_truncation: float = 0.5,
                              max_occlusion: int = 1) -> KittiObjectLabels:
-    """Parse one ``label_2`` file and split it into evaluated and ignored objects (module docstring)."""
+    """Parse one ``label_2`` file and split it into evaluated and ignored objects (module docstring).
+
+    ``FileNotFoundError`` for a missing file; :class:`~privslam_jax.errors.InputError` naming
+    ``file:line`` for text that is not UTF-8, an unknown type, fewer than 8 fields, a value that is
+    not a number, a NaN/inf truncation or box, a non-integer occlusion or a box with ``x2 < x1`` or
+    ``y2 < y1``.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"KITTI label file not found: {path}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise input_error(path, "not a KITTI label file (not UTF-8 text)", err) from err
     boxes, accepted, types, ignored = [], [], [], []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    for n, line in enumerate(text.splitlines(), 1):
         f = line.split()
         if not f:
             continue
         if len(f) < 8 or f[0] not in KITTI_TYPES:
-            raise ValueError(f"{path}:{n}: not a KITTI object label line: {line!r}")
+            raise InputError(f"{path}:{n}: not a KITTI object label line: {line.strip()[:80]!r}")
         try:
-            trunc, occ = float(f[1]), int(float(f[2]))
+            trunc, occ_f = float(f[1]), float(f[2])
             box = [float(v) for v in f[4:8]]
         except ValueError:
-            raise ValueError(f"{path}:{n}: bad number in {line!r}") from None
+            raise InputError(f"{path}:{n}: bad number in {line.strip()[:80]!r}") from None
+        if not (math.isfinite(trunc) and math.isfinite(occ_f) and occ_f == int(occ_f)):
+            raise InputError(f"{path}:{n}: truncation must be a finite number and occlusion an integer, "
+                             f"got {f[1][:20]!r} {f[2][:20]!r}")
+        occ = int(occ_f)
         if not np.all(np.isfinite(box)) or box[2] < box[0] or box[3] < box[1]:
-            raise ValueError(f"{path}:{n}: bad box {box}")
+            raise InputError(f"{path}:{n}: bad box {box}")
         required = (f[0] in KITTI_TO_COCO and box[3] - box[1] >= min_height and trunc <= max_truncation
                     and occ <= max_occlusion)
         if required:

@@ -16,6 +16,14 @@ Only scalar properties are supported (list properties, as in mesh faces, raise a
   them into Plücker coordinates ``d = (b − a)/‖b − a‖, m = a × d``.
 
 Writing uses numpy structured arrays: ``tofile`` for binary, ``savetxt`` for ASCII.
+
+Reading refuses, with an :class:`~privslam_jax.errors.InputError` (a ``ValueError``) naming the
+file, anything it cannot use: no ``ply`` magic or ``end_header``, an unknown format, keyword or
+property type, element counts larger than the file can hold (checked before anything is
+allocated), a truncated body, ASCII rows with the wrong number of values or junk, values out of
+their type's range, and NaN/inf coordinates (or float colours). A missing file raises
+``FileNotFoundError``. Memory: a binary file is read with at most about 3 times its size, an ASCII
+file with at most about 40 times (its lines as Python strings).
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from privslam_jax.data.files import write_atomic
+from privslam_jax.errors import input_error
 from privslam_jax.types import LineCloud, PointCloud
 
 __all__ = [
@@ -88,16 +97,16 @@ def write_ply(path: str | os.PathLike, elements: dict[str, np.ndarray], *, binar
 
 def _parse_header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], int]:
     if not raw.startswith(b"ply"):
-        raise ValueError(f"{path}: not a PLY file (missing 'ply' magic)")
+        raise input_error(path, "not a PLY file (missing 'ply' magic)")
     end = raw.find(b"end_header")
     if end < 0:
-        raise ValueError(f"{path}: PLY header has no 'end_header'")
+        raise input_error(path, "PLY header has no 'end_header'")
     nl = raw.find(b"\n", end)
     body_start = len(raw) if nl < 0 else nl + 1
     try:
         lines = raw[:end].decode("ascii").splitlines()
     except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: PLY header is not ASCII") from err
+        raise input_error(path, "PLY header is not ASCII") from err
     fmt = None
     elements: list[tuple[str, int, list[tuple[str, str]]]] = []
     for lineno, line in enumerate(lines[1:], start=2):
@@ -106,38 +115,46 @@ def _parse_header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, lis
             continue
         if tok[0] == "format":
             if len(tok) != 3 or tok[1] not in _FORMATS:
-                raise ValueError(f"{path}: unsupported PLY format line {line!r}")
+                raise input_error(path, f"unsupported PLY format line {line!r}")
             fmt = tok[1]
         elif tok[0] == "element":
-            if len(tok) != 3 or not tok[2].isdigit():
-                raise ValueError(f"{path}: bad element line {lineno}: {line!r}")
+            # at most 18 digits: a count beyond 10^18 cannot fit any file (and int() of 4300+ digits fails)
+            if len(tok) != 3 or not tok[2].isdigit() or len(tok[2]) > 18:
+                raise input_error(path, f"bad element line {lineno}: {line[:200]!r}")
             elements.append((tok[1], int(tok[2]), []))
         elif tok[0] == "property":
             if not elements:
-                raise ValueError(f"{path}: property before any element (line {lineno})")
+                raise input_error(path, f"property before any element (line {lineno})")
             if len(tok) >= 2 and tok[1] == "list":
-                raise ValueError(f"{path}: list properties are not supported (element {elements[-1][0]!r})")
+                raise input_error(path, f"list properties are not supported (element {elements[-1][0]!r})")
             if len(tok) != 3 or tok[1] not in _PLY_TYPES:
-                raise ValueError(f"{path}: bad property line {lineno}: {line!r}")
+                raise input_error(path, f"bad property line {lineno}: {line[:200]!r}")
+            if tok[2] in (name for name, _ in elements[-1][2]):
+                raise input_error(path, f"element {elements[-1][0]!r} repeats property {tok[2]!r} (line {lineno})")
             elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
         else:
-            raise ValueError(f"{path}: unknown PLY header keyword on line {lineno}: {line!r}")
+            raise input_error(path, f"unknown PLY header keyword on line {lineno}: {line[:200]!r}")
     if fmt is None:
-        raise ValueError(f"{path}: PLY header has no 'format' line")
+        raise input_error(path, "PLY header has no 'format' line")
     return fmt, elements, body_start
 
 
 def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read every element of a PLY file into numpy structured arrays, keyed by element name.
 
-    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` (naming the file) for a
-    corrupt header, a truncated body or unparsable ASCII values.
+    Raises ``FileNotFoundError`` for a missing file and :class:`~privslam_jax.errors.InputError`
+    (a ``ValueError`` naming the file) for a corrupt header, element counts the file cannot hold,
+    a truncated body or unparsable ASCII values. Nothing larger than the file's content is
+    allocated before it is checked (see the module docstring).
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"PLY file not found: {path}")
     raw = path.read_bytes()
     fmt, elements, pos = _parse_header(path, raw)
+    names = [name for name, _, _ in elements]
+    if len(set(names)) != len(names):
+        raise input_error(path, f"PLY header repeats an element name: {names}")
     out: dict[str, np.ndarray] = {}
     if fmt == "ascii":
         rows = raw[pos:].decode("ascii", errors="replace").splitlines()
@@ -147,16 +164,20 @@ def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
             dtype = np.dtype([(p, t) for p, t in props])
             chunk = rows[r0:r0 + count]
             if len(chunk) < count:
-                raise ValueError(f"{path}: truncated: element {name!r} has {len(chunk)} of {count} rows")
+                raise input_error(path, f"truncated: element {name!r} has {len(chunk)} of {count} rows")
+            # k values need at least 2k - 1 characters per row: check before allocating count rows
+            if props and sum(map(len, chunk)) < count * (2 * len(props) - 1):
+                raise input_error(path, f"element {name!r}: its rows are too short to hold {len(props)} values each")
             arr = np.zeros(count, dtype)
             for i, row in enumerate(chunk):
                 tok = row.split()
                 if len(tok) != len(props):
-                    raise ValueError(f"{path}: element {name!r} row {i}: expected {len(props)} values, got {len(tok)}")
+                    raise input_error(path, f"element {name!r} row {i}: expected {len(props)} values, got {len(tok)}")
                 try:
-                    arr[i] = tuple(float(v) if t[0] == "f" else int(v) for v, (_, t) in zip(tok, props))
-                except (ValueError, OverflowError) as err:
-                    raise ValueError(f"{path}: element {name!r} row {i}: cannot parse {row!r}") from err
+                    with np.errstate(over="raise", invalid="raise"):  # 1e39 in a float field: an error, not inf
+                        arr[i] = tuple(float(v) if t[0] == "f" else int(v) for v, (_, t) in zip(tok, props))
+                except (ValueError, OverflowError, FloatingPointError) as err:
+                    raise input_error(path, f"element {name!r} row {i}: cannot parse {row[:200]!r}") from err
             out[name] = arr
             r0 += count
     else:
@@ -165,26 +186,42 @@ def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
             dtype = np.dtype([(p, order + t) for p, t in props])
             nbytes = dtype.itemsize * count
             if pos + nbytes > len(raw):
-                raise ValueError(
-                    f"{path}: truncated: element {name!r} needs {nbytes} bytes, {max(len(raw) - pos, 0)} left"
+                raise input_error(
+                    path, f"truncated: element {name!r} needs {nbytes} bytes, {max(len(raw) - pos, 0)} left"
                 )
+            if dtype.itemsize == 0:  # an element without properties: rows of nothing
+                if count > len(raw):
+                    raise input_error(path, f"element {name!r} has no properties but claims {count} rows")
+                out[name] = np.zeros(count, dtype)
+                continue
             arr = np.frombuffer(raw, dtype=dtype, count=count, offset=pos)
-            out[name] = arr.astype(dtype.newbyteorder("="))
+            with np.errstate(all="ignore"):  # byte order only; NaN bit patterns are checked by the loaders
+                out[name] = arr.astype(dtype.newbyteorder("="))
             pos += nbytes
     return out
 
 
 def _vertex_xyz(path: Path, elements: dict[str, np.ndarray]) -> np.ndarray:
     if "vertex" not in elements:
-        raise ValueError(f"{path}: PLY file has no 'vertex' element")
+        raise input_error(path, "PLY file has no 'vertex' element")
     v = elements["vertex"]
     missing = [c for c in "xyz" if c not in (v.dtype.names or ())]
     if missing:
-        raise ValueError(f"{path}: vertex element lacks properties {missing}")
-    xyz = np.stack([v["x"], v["y"], v["z"]], axis=-1).astype(np.float64)
+        raise input_error(path, f"vertex element lacks properties {missing}")
+    with np.errstate(invalid="ignore"):  # a signalling-NaN bit pattern warns when cast; refused just below
+        xyz = np.stack([v["x"], v["y"], v["z"]], axis=-1).astype(np.float64)
     if not np.all(np.isfinite(xyz)):
-        raise ValueError(f"{path}: vertex coordinates contain NaN or inf")
+        raise input_error(path, "vertex coordinates contain NaN or inf")
     return xyz
+
+
+def _as_float(path: Path, x: np.ndarray, what: str, dtype: np.dtype) -> np.ndarray:
+    """``x`` cast to ``dtype``; values beyond its range (1e39 in float32) are refused, not made inf."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        y = x.astype(dtype)
+    if not np.all(np.isfinite(y)):
+        raise input_error(path, f"{what} exceed the {dtype} range")
+    return y
 
 
 def save_point_cloud(path: str | os.PathLike, cloud: PointCloud, *, binary: bool = True) -> None:
@@ -219,16 +256,25 @@ def load_point_cloud(path: str | os.PathLike) -> PointCloud:
     names = v.dtype.names or ()
     colors = None
     if all(c in names for c in ("red", "green", "blue")):
-        rgb = np.stack([v["red"], v["green"], v["blue"]], axis=-1).astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            rgb = np.stack([v["red"], v["green"], v["blue"]], axis=-1).astype(np.float64)
+        if not np.all(np.isfinite(rgb)):
+            raise input_error(path, "vertex colours contain NaN or inf")
         # integer colours are 0..255; float colours are taken to be in [0, 1] already
         colors = rgb if v.dtype["red"].kind == "f" else rgb / 255.0
     obs = None
     if "observations" in names:
-        obs = jnp.asarray(v["observations"].astype(np.int32))
+        o = v["observations"]
+        info = np.iinfo(np.int32)
+        with np.errstate(invalid="ignore"):
+            ok = np.all(np.isfinite(o) & (o == np.round(o))) if o.dtype.kind == "f" else True
+        if not ok or (o.size and (o.min() < info.min or o.max() > info.max)):
+            raise input_error(path, "vertex observations are not int32 integers")
+        obs = jnp.asarray(o.astype(np.int32))
     fdt = _float_dtype()
     return PointCloud(
-        xyz=jnp.asarray(xyz.astype(fdt)),
-        colors=None if colors is None else jnp.asarray(colors.astype(fdt)),
+        xyz=jnp.asarray(_as_float(path, xyz, "vertex coordinates", fdt)),
+        colors=None if colors is None else jnp.asarray(_as_float(path, colors, "vertex colours", fdt)),
         observations=obs,
     )
 
@@ -267,22 +313,32 @@ def load_line_cloud(path: str | os.PathLike) -> LineCloud:
     if "edge" in elements:
         e = elements["edge"]
         if not all(c in (e.dtype.names or ()) for c in ("vertex1", "vertex2")):
-            raise ValueError(f"{path}: edge element lacks vertex1/vertex2")
-        i1, i2 = e["vertex1"].astype(np.int64), e["vertex2"].astype(np.int64)
-        bad = (i1 < 0) | (i1 >= len(xyz)) | (i2 < 0) | (i2 >= len(xyz))
+            raise input_error(path, "edge element lacks vertex1/vertex2")
+        f1, f2 = e["vertex1"], e["vertex2"]
+        bad = np.zeros(len(e), bool)
+        for f in (f1, f2):
+            with np.errstate(invalid="ignore"):
+                bad |= ~((f >= 0) & (f < len(xyz)))  # also NaN
+                if f.dtype.kind == "f":
+                    bad |= f != np.floor(f)
         if np.any(bad):
-            raise ValueError(f"{path}: edge {int(np.argmax(bad))} refers to a vertex outside 0..{len(xyz) - 1}")
+            raise input_error(path, f"edge {int(np.argmax(bad))} refers to a vertex outside 0..{len(xyz) - 1}")
+        i1, i2 = f1.astype(np.int64), f2.astype(np.int64)
     else:
         if len(xyz) % 2:
-            raise ValueError(f"{path}: no edges and an odd number of vertices ({len(xyz)})")
+            raise input_error(path, f"no edges and an odd number of vertices ({len(xyz)})")
         i1, i2 = np.arange(0, len(xyz), 2), np.arange(1, len(xyz), 2)
     a, b = xyz[i1], xyz[i2]
-    length = np.linalg.norm(b - a, axis=1, keepdims=True)
-    if np.any(length == 0):
-        raise ValueError(f"{path}: segment {int(np.argmin(length[:, 0]))} has zero length")
-    d = (b - a) / length
-    m = np.cross(a, d)
+    with np.errstate(over="ignore", invalid="ignore"):
+        length = np.linalg.norm(b - a, axis=1, keepdims=True)
+        if np.any(length == 0):
+            raise input_error(path, f"segment {int(np.argmin(length[:, 0]))} has zero length")
+        d = (b - a) / length
+        m = np.cross(a, d)
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(m))):
+        raise input_error(path, "segment coordinates too large (their lines overflow float64)")
     if elements["vertex"]["x"].dtype == np.float64 and _float_dtype() != np.float64:  # keep a float64 file's precision
         return LineCloud(directions=d, moments=m)
     fdt = _float_dtype()
-    return LineCloud(directions=jnp.asarray(d.astype(fdt)), moments=jnp.asarray(m.astype(fdt)))
+    return LineCloud(directions=jnp.asarray(_as_float(path, d, "line directions", fdt)),
+                     moments=jnp.asarray(_as_float(path, m, "line moments", fdt)))

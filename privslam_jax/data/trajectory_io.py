@@ -21,14 +21,17 @@ unless ``jax_enable_x64`` is on).
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
+import jax
 import numpy as np
 from jaxtyping import Float
 from scipy.spatial.transform import Rotation
 
 from privslam_jax.data.files import write_atomic
+from privslam_jax.errors import InputError, input_error
 from privslam_jax.types import Trajectory
 
 __all__ = [
@@ -46,36 +49,58 @@ __all__ = [
 
 PathLike = str | os.PathLike
 
+ROTATION_TOLERANCE = 1e-2
+"""Largest ``|RᵀR − I|`` entry accepted in a KITTI pose's rotation block (files carry 6–7 digits: ~1e-7)."""
+
 
 def _fmt(x: float) -> str:
     """Shortest decimal string that reads back to the same float64 (``repr``)."""
     return repr(float(x))
 
 
-def _read_rows(path: PathLike, ncols: int, what: str) -> np.ndarray:
-    """Parse a whitespace table with ``ncols`` numbers per non-comment line; errors name file:line."""
+def _read_rows(path: PathLike, ncols: int, what: str, linenos: list[int] | None = None) -> np.ndarray:
+    """Parse a whitespace table with ``ncols`` finite numbers per non-comment line.
+
+    ``FileNotFoundError`` for a missing file; :class:`InputError` naming ``file:line`` for anything
+    else (not UTF-8, wrong column count, not a number, NaN/inf, no rows).  ``linenos`` (if given)
+    receives the line number of each row.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{what} file not found: {path}")
     rows: list[list[float]] = []
-    with open(path, encoding="utf-8") as f:
-        for lineno, line in enumerate(f, 1):
-            text = line.split("#", 1)[0].strip()
-            if not text:
-                continue
-            parts = text.replace(",", " ").split()
-            if len(parts) != ncols:
-                raise ValueError(f"{path}:{lineno}: expected {ncols} numbers per line ({what}), got {len(parts)}")
-            try:
-                vals = [float(p) for p in parts]
-            except ValueError:
-                raise ValueError(f"{path}:{lineno}: not a number in {line.strip()!r}") from None
-            if not np.all(np.isfinite(vals)):
-                raise ValueError(f"{path}:{lineno}: NaN or inf in {what}")
-            rows.append(vals)
+    try:
+        with open(path, encoding="utf-8") as f:
+            for lineno, line in enumerate(f, 1):
+                text = line.split("#", 1)[0].strip()
+                if not text:
+                    continue
+                parts = text.replace(",", " ").split()
+                if len(parts) != ncols:
+                    raise InputError(f"{path}:{lineno}: expected {ncols} numbers per line ({what}), got {len(parts)}")
+                try:
+                    vals = [float(p) for p in parts]
+                except ValueError:
+                    raise InputError(f"{path}:{lineno}: not a number in {text[:80]!r}") from None
+                if not all(map(math.isfinite, vals)):
+                    raise InputError(f"{path}:{lineno}: NaN or inf in {what}")
+                rows.append(vals)
+                if linenos is not None:
+                    linenos.append(lineno)
+    except UnicodeDecodeError as err:
+        raise input_error(path, f"not a {what} file (not UTF-8 text)", err) from err
     if not rows:
-        raise ValueError(f"{path}: no poses in {what} file")
+        raise InputError(f"{path}: no poses in {what} file")
     return np.asarray(rows, dtype=np.float64)
+
+
+def _check_fits_trajectory(path: PathLike, *arrays: np.ndarray) -> None:
+    """Refuse values a :class:`Trajectory` (JAX default precision) would turn into ``inf``."""
+    dtype = jax.dtypes.canonicalize_dtype(np.float64)
+    limit = float(np.finfo(dtype).max)
+    for a in arrays:
+        if a.size and float(np.max(np.abs(a))) > limit:
+            raise InputError(f"{path}: values beyond the {np.dtype(dtype).name} range of a Trajectory (|x| > {limit:.4g})")
 
 
 def _check_matrices(T_w_c: np.ndarray) -> np.ndarray:
@@ -103,7 +128,13 @@ def tum_rows_to_matrices(rows: Float[np.ndarray, "N 7"]) -> Float[np.ndarray, "N
     """``(N, 7)`` rows ``tx ty tz qx qy qz qw`` → ``(N, 4, 4)`` homogeneous matrices (quaternions normalised)."""
     rows = np.asarray(rows, dtype=np.float64)
     q = rows[:, 3:7]
-    norm = np.linalg.norm(q, axis=1)
+    with np.errstate(over="ignore"):
+        norm = np.linalg.norm(q, axis=1)
+    huge = np.isinf(norm) & np.all(np.isfinite(q), axis=1)
+    if huge.any():  # components near the float64 limit: scale before normalising (other rows unchanged)
+        q = q.copy()
+        q[huge] /= np.max(np.abs(q[huge]), axis=1, keepdims=True)
+        norm[huge] = np.linalg.norm(q[huge], axis=1)
     if np.any(norm < 1e-12):
         raise ValueError(f"zero quaternion in row {int(np.argmin(norm))}")
     T = np.tile(np.eye(4), (rows.shape[0], 1, 1))
@@ -115,18 +146,20 @@ def tum_rows_to_matrices(rows: Float[np.ndarray, "N 7"]) -> Float[np.ndarray, "N
 def read_tum_matrices(path: PathLike) -> tuple[Float[np.ndarray, " N"], Float[np.ndarray, "N 4 4"]]:
     """Read a TUM trajectory: ``(timestamps (N,), T_w_c (N, 4, 4))`` in float64.
 
-    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` (naming ``file:line``) for
-    a malformed line, a zero quaternion or timestamps that do not increase strictly.
+    Raises ``FileNotFoundError`` for a missing file and :class:`~privslam_jax.errors.InputError`
+    (naming ``file:line``) for text that is not UTF-8, a malformed line, NaN/inf, a zero quaternion
+    or timestamps that do not increase strictly.
     """
     rows = _read_rows(path, 8, "TUM trajectory")
     t = rows[:, 0]
-    bad = np.nonzero(np.diff(t) <= 0)[0]
+    with np.errstate(over="ignore"):  # ±1e308 neighbours: the difference is ±inf, still the right sign
+        bad = np.nonzero(np.diff(t) <= 0)[0]
     if bad.size:
-        raise ValueError(f"{path}: timestamps must increase strictly (pose {bad[0] + 1} at t={t[bad[0] + 1]!r})")
+        raise InputError(f"{path}: timestamps must increase strictly (pose {bad[0] + 1} at t={t[bad[0] + 1]!r})")
     try:
         T = tum_rows_to_matrices(rows[:, 1:])
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from None
+        raise InputError(f"{path}: {err}") from err
     return t, T
 
 
@@ -146,10 +179,25 @@ def write_tum_matrices(path: PathLike, timestamps: Float[np.ndarray, " M"], T_w_
 
 
 def read_kitti_matrices(path: PathLike) -> Float[np.ndarray, "N 4 4"]:
-    """Read a KITTI odometry pose file (12 numbers per line) into ``(N, 4, 4)`` float64 ``T_w_c``."""
-    rows = _read_rows(path, 12, "KITTI poses")
+    """Read a KITTI odometry pose file (12 numbers per line) into ``(N, 4, 4)`` float64 ``T_w_c``.
+
+    Raises ``FileNotFoundError`` for a missing file and :class:`~privslam_jax.errors.InputError`
+    (naming ``file:line``) for text that is not UTF-8, a malformed line, NaN/inf or a rotation
+    block that is not a rotation (``|RᵀR − I| > ROTATION_TOLERANCE`` or ``det R ≤ 0``).
+    """
+    linenos: list[int] = []
+    rows = _read_rows(path, 12, "KITTI poses", linenos)
     T = np.tile(np.eye(4), (rows.shape[0], 1, 1))
     T[:, :3, :] = rows.reshape(-1, 3, 4)
+    R = T[:, :3, :3]
+    with np.errstate(all="ignore"):  # garbage near the float64 limit overflows here; it is refused below
+        dev = np.max(np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)), axis=(1, 2))
+        det = np.linalg.det(R)
+    bad = np.nonzero(~(dev <= ROTATION_TOLERANCE) | ~(det > 0))[0]
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(f"{path}:{linenos[i]}: the rotation block of pose {i} is not a rotation "
+                         f"(max |R^T R - I| = {dev[i]:.3g}, det = {det[i]:.3g})")
     return T
 
 
@@ -160,8 +208,10 @@ def write_kitti_matrices(path: PathLike, T_w_c: Float[np.ndarray, "N _ _"]) -> N
 
 
 def load_tum(path: PathLike) -> Trajectory:
-    """Read a TUM file as a :class:`Trajectory` (JAX default precision)."""
+    """Read a TUM file as a :class:`Trajectory` (JAX default precision; values beyond its range are an
+    :class:`~privslam_jax.errors.InputError`)."""
     t, T = read_tum_matrices(path)
+    _check_fits_trajectory(path, t, T)
     return Trajectory.from_matrices(t, T)
 
 
@@ -176,6 +226,7 @@ def load_kitti(path: PathLike, timestamps: Float[np.ndarray, " M"] | None = None
     t = np.arange(T.shape[0], dtype=np.float64) / fps if timestamps is None else np.asarray(timestamps, np.float64)
     if t.shape != (T.shape[0],):
         raise ValueError(f"{path}: {T.shape[0]} poses but {t.shape[0]} timestamps")
+    _check_fits_trajectory(path, T)
     return Trajectory.from_matrices(t, T)
 
 

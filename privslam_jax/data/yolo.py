@@ -20,6 +20,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from privslam_jax.data.images import read_image, write_image_file
+from privslam_jax.errors import InputError, input_error
 
 __all__ = [
     "read_yolo_labels",
@@ -59,35 +60,42 @@ def read_yolo_labels(
     """Read a YOLO label file: ``(class_ids int32 (K,), boxes float64 (K, 4) normalised cx cy w h)``.
 
     ``missing_ok``: a missing file gives zero objects instead of ``FileNotFoundError``.
-    Malformed lines raise ``ValueError`` naming ``file:line``.
+    Anything else wrong raises :class:`~privslam_jax.errors.InputError` naming ``file:line``: text
+    that is not UTF-8, a value that is not a number, a wrong count, a class id that is not an integer
+    in ``[0, 2³¹)``, NaN/inf in the box (or a polygon whose box overflows).
     """
     path = Path(path)
     if not path.is_file():
         if missing_ok:
             return np.zeros(0, np.int32), np.zeros((0, 4))
         raise FileNotFoundError(f"label file not found: {path}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise input_error(path, "not a YOLO label file (not UTF-8 text)", err) from err
     cls: list[int] = []
     boxes: list[list[float]] = []
-    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    for lineno, line in enumerate(text.splitlines(), 1):
         parts = line.split()
         if not parts:
             continue
         try:
             vals = [float(p) for p in parts]
         except ValueError:
-            raise ValueError(f"{path}:{lineno}: not a number in {line.strip()!r}") from None
+            raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:80]!r}") from None
         if len(vals) == 5:
             box = vals[1:]
         elif len(vals) >= 7 and len(vals) % 2 == 1:  # polygon: class x1 y1 x2 y2 ...
             xy = np.asarray(vals[1:]).reshape(-1, 2)
-            lo, hi = xy.min(axis=0), xy.max(axis=0)
-            box = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[0] - lo[0], hi[1] - lo[1]]
+            with np.errstate(all="ignore"):  # NaN/inf or ±1e308 corners: the box is not finite, refused below
+                lo, hi = xy.min(axis=0), xy.max(axis=0)
+                box = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[0] - lo[0], hi[1] - lo[1]]
         else:
-            raise ValueError(f"{path}:{lineno}: expected 'class cx cy w h' (5 numbers), got {len(vals)}")
-        if vals[0] != int(vals[0]) or vals[0] < 0:
-            raise ValueError(f"{path}:{lineno}: class id must be a non-negative integer, got {parts[0]}")
+            raise InputError(f"{path}:{lineno}: expected 'class cx cy w h' (5 numbers), got {len(vals)}")
+        if not (0 <= vals[0] < 2**31 and vals[0] == int(vals[0])):
+            raise InputError(f"{path}:{lineno}: class id must be a non-negative integer, got {parts[0][:20]!r}")
         if not np.all(np.isfinite(box)):
-            raise ValueError(f"{path}:{lineno}: NaN or inf in the box")
+            raise InputError(f"{path}:{lineno}: NaN or inf in the box")
         cls.append(int(vals[0]))
         boxes.append(box)
     return np.asarray(cls, np.int32), np.asarray(boxes, np.float64).reshape(-1, 4)
@@ -140,7 +148,7 @@ class YoloDataset:
             raise FileNotFoundError(f"YOLO image folder not found: {img_dir}")
         self.image_paths = sorted(p for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not self.image_paths:
-            raise ValueError(f"no images in {img_dir}")
+            raise input_error(img_dir, "no images in the YOLO image folder")
         self.label_paths = [self.root / "labels" / split / (p.stem + ".txt") for p in self.image_paths]
 
     def __len__(self) -> int:

@@ -35,6 +35,7 @@ import io
 import json
 import math
 import pickle
+import pickletools
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -43,8 +44,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from privslam_jax.data.npz import check_finite, check_zip_directory, read_npz
 from privslam_jax.detect.yolo11 import YOLO11Config, abstract_yolo11
 from privslam_jax.detect.yolov8 import YOLOv8, YOLOv8Config, abstract_yolov8
+from privslam_jax.errors import InputError, input_error
 
 __all__ = [
     "UnsafeCheckpointError",
@@ -72,8 +75,8 @@ _STORAGE_DTYPES: dict[str, np.dtype] = {
 }
 
 
-class UnsafeCheckpointError(pickle.UnpicklingError, ValueError):
-    """The checkpoint pickle references something outside the allow-list."""
+class UnsafeCheckpointError(pickle.UnpicklingError, InputError):
+    """The checkpoint pickle references something outside the allow-list (or would allocate more than the file holds)."""
 
 
 class _StorageType:
@@ -101,7 +104,21 @@ class ModuleStub:
         return f"<stub {self.qualname}>"
 
 
-def _rebuild_tensor_v2(storage: np.ndarray, offset: int, size: tuple, stride: tuple, *_: object) -> np.ndarray:
+class _Budget:
+    """Bytes the tensors of one checkpoint may still take (views of a storage are copied)."""
+
+    def __init__(self, limit: int):
+        self.left = limit
+
+    def take(self, nbytes: int) -> None:
+        self.left -= nbytes
+        if self.left < 0:
+            raise UnsafeCheckpointError("the checkpoint's tensors would take more memory than its storages hold "
+                                        "(many views of the same storage)")
+
+
+def _rebuild_tensor_v2(storage: np.ndarray, offset: int, size: tuple, stride: tuple, *_: object,
+                       _budget: _Budget | None = None) -> np.ndarray:
     if not isinstance(storage, np.ndarray):
         raise UnsafeCheckpointError(f"tensor storage is a {type(storage).__name__}, not a storage")
     if (not isinstance(size, tuple) or not isinstance(stride, tuple) or len(size) != len(stride)
@@ -110,6 +127,8 @@ def _rebuild_tensor_v2(storage: np.ndarray, offset: int, size: tuple, stride: tu
     n = math.prod(size)
     if n > storage.size:  # a view larger than its storage (e.g. stride 0) would allocate more than the file holds
         raise UnsafeCheckpointError(f"tensor view {size}/{stride} has {n} elements, more than its storage ({storage.size})")
+    if _budget is not None:
+        _budget.take(n * storage.dtype.itemsize * (3 if storage.dtype == np.float16 else 1))  # fp16 copy + fp32
     if n == 0:
         out = np.zeros(size, storage.dtype)
     else:
@@ -147,14 +166,20 @@ class RestrictedUnpickler(pickle.Unpickler):
     """Unpickler for torch zip checkpoints that resolves only allow-listed globals.
 
     ``storages(key, dtype, numel)`` returns the raw storage ``key`` as a 1-D numpy array.
+    ``max_tensor_bytes`` bounds the memory all rebuilt tensors take together
+    (:class:`UnsafeCheckpointError` beyond it).
     """
 
-    def __init__(self, file: io.BufferedIOBase, storages):
+    def __init__(self, file: io.BufferedIOBase, storages, max_tensor_bytes: int | None = None):
         super().__init__(file)
         self._storages = storages
         self._stubs: dict[str, type] = {}
+        self._budget = None if max_tensor_bytes is None else _Budget(max_tensor_bytes)
 
     def find_class(self, module: str, name: str) -> object:
+        if (module, name) == ("torch._utils", "_rebuild_tensor_v2"):
+            budget = self._budget
+            return lambda *args: _rebuild_tensor_v2(*args, _budget=budget)
         if (module, name) in _ALLOWED:
             target = _ALLOWED[(module, name)]
             # Fresh objects per lookup: a pickle BUILD opcode on a returned global (e.g. setting
@@ -183,7 +208,10 @@ class RestrictedUnpickler(pickle.Unpickler):
 
 
 def _open_archive(path: Path):
-    """``(read(relpath) -> bytes, prefix)`` for a torch zip or its unzipped folder."""
+    """``(read(relpath) -> bytes, storage_bytes)`` for a torch zip or its unzipped folder.
+
+    ``storage_bytes`` is the total size of the ``data/*`` storages (it bounds the tensors).
+    """
     if path.is_dir():
         candidates = [path] if (path / "data.pkl").is_file() else sorted(p.parent for p in path.glob("*/data.pkl"))
         if len(candidates) != 1:
@@ -196,57 +224,89 @@ def _open_archive(path: Path):
                 raise FileNotFoundError(f"{path}: missing {rel} in the unzipped checkpoint")
             return f.read_bytes()
 
-        return read
+        data = root / "data"
+        return read, sum(f.stat().st_size for f in data.iterdir() if f.is_file()) if data.is_dir() else 0
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
     if not zipfile.is_zipfile(path):
-        raise ValueError(f"{path} is not a torch zip checkpoint (legacy pickle .pt files are not supported)")
+        raise input_error(path, "not a torch zip checkpoint (legacy pickle .pt files are not supported)")
     zf = zipfile.ZipFile(path)
+    infos = zf.infolist()
+    check_zip_directory(path, infos, path.stat().st_size)  # no member may expand beyond 1100x its bytes
     pkls = [n for n in zf.namelist() if n.endswith("data.pkl") and n.count("/") == 1]
     if len(pkls) != 1:
-        raise ValueError(f"{path}: expected one <name>/data.pkl in the archive, found {pkls}")
+        raise input_error(path, f"expected one <name>/data.pkl in the archive, found {pkls[:4]}")
     prefix = pkls[0][: -len("data.pkl")]
 
     def read_zip(rel: str) -> bytes:
         try:
             return zf.read(prefix + rel)
         except KeyError:
-            raise ValueError(f"{path}: archive lacks {prefix + rel}") from None
+            raise input_error(path, f"archive lacks {prefix + rel}") from None
 
-    return read_zip
+    return read_zip, sum(i.file_size for i in infos if i.filename.startswith(prefix + "data/"))
+
+
+def _check_pickle(path: Path, data: bytes) -> None:
+    """Walk the pickle's opcodes without building anything: refuse what would make the C
+    unpickler allocate beyond the data (a byte count larger than what follows it — CPython 3.11's
+    unpickler allocates the count before reading — or a memo index far beyond the pickle's length)."""
+    try:
+        for op, arg, _ in pickletools.genops(data):  # a counted argument that the data lacks raises here
+            if op.name in ("PUT", "BINPUT", "LONG_BINPUT") and not (isinstance(arg, int) and 0 <= arg <= len(data)):
+                raise input_error(path, f"pickle memo index {arg} is beyond the pickle's {len(data)} bytes")
+    except InputError:
+        raise
+    except Exception as err:  # noqa: BLE001 - pickletools reports malformed opcodes with any of several types
+        raise input_error(path, "data.pkl is not a readable pickle", err) from err
 
 
 def read_torch_checkpoint(path: str | Path) -> object:
     """Unpickle a torch zip checkpoint (file or unzipped folder) safely; tensors → numpy.
 
     A damaged file (truncated or corrupt archive, a pickle that does not build) raises
-    ``ValueError`` naming the file, never a traceback from ``zipfile``, ``zlib`` or ``pickle``.
+    :class:`~privslam_jax.errors.InputError` naming the file, never a traceback from ``zipfile``,
+    ``zlib`` or ``pickle``; a pickle that names anything outside the allow-list
+    :class:`UnsafeCheckpointError` (an ``InputError`` too), also naming the file. Memory stays
+    within a multiple of the file: every zip member at most 1100 times its compressed bytes
+    (:func:`~privslam_jax.data.npz.check_zip_directory`), each storage read once, the pickle
+    checked for counts beyond its data before unpickling (:func:`_check_pickle`) and all tensors
+    together at most ``3 ×`` the storages' bytes plus 1 MiB.
     """
     path = Path(path)
     try:
         return _read_torch_checkpoint(path)
-    except (ValueError, OSError):  # ours (incl. UnsafeCheckpointError) or a missing file: already clear
+    except InputError as err:
+        if str(path) in str(err):
+            raise
+        raise type(err)(f"{path}: {err}") from err  # the unpickler does not know the file; keep the type
+    except (FileNotFoundError, PermissionError):
         raise
     except Exception as err:  # noqa: BLE001 - a file-reader boundary: any library failure is a bad file
-        raise ValueError(f"{path}: not a readable torch checkpoint ({type(err).__name__}: {err})") from None
+        raise input_error(path, "not a readable torch checkpoint", err) from err
 
 
 def _read_torch_checkpoint(path: Path) -> object:
-    read = _open_archive(path)
+    read, storage_bytes = _open_archive(path)
     try:
         order = read("byteorder").decode().strip()
     except (FileNotFoundError, ValueError):
         order = "little"
     if order != "little":
-        raise ValueError(f"{path}: big-endian checkpoints are not supported")
+        raise input_error(path, "big-endian checkpoints are not supported")
+    cache: dict[str, bytes] = {}
 
     def storages(key: str, dtype: np.dtype, numel: int) -> np.ndarray:
-        raw = read(f"data/{key}")
+        if key not in cache:  # a storage shared by many tensors is read once
+            cache[key] = read(f"data/{key}")
+        raw = cache[key]
         if len(raw) < numel * dtype.itemsize:
-            raise ValueError(f"{path}: storage {key} has {len(raw)} bytes, expected {numel * dtype.itemsize}")
+            raise input_error(path, f"storage {key} has {len(raw)} bytes, expected {numel * dtype.itemsize}")
         return np.frombuffer(raw, dtype=dtype, count=numel)
 
-    return RestrictedUnpickler(io.BytesIO(read("data.pkl")), storages).load()
+    pkl = read("data.pkl")
+    _check_pickle(path, pkl)
+    return RestrictedUnpickler(io.BytesIO(pkl), storages, max_tensor_bytes=3 * storage_bytes + 2**20).load()
 
 
 def _module_state(stub: object, prefix: str, out: dict[str, np.ndarray]) -> None:
@@ -417,10 +477,49 @@ def load_ultralytics(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:
 
     Zip file or unzipped folder; architecture and scale from :func:`detect_architecture`.
 
-    Returns the model and the class names stored in the checkpoint.
+    Returns the model and the class names stored in the checkpoint. A file that is not a usable
+    detector checkpoint raises :class:`~privslam_jax.errors.InputError` naming it.
     """
-    sd, names = ultralytics_state_dict(read_torch_checkpoint(path))
-    return _build(sd), names
+    ckpt = read_torch_checkpoint(path)
+    try:
+        sd, names = ultralytics_state_dict(ckpt)
+    except ValueError as err:
+        raise input_error(path, "not a usable ultralytics checkpoint", err) from err
+    return _build_from_file(path, sd), names
+
+
+def _build_from_file(path: str | Path, sd: Mapping[str, np.ndarray], arch: str | None = None) -> YOLOv8:
+    """:func:`_build`, with every way the arrays can be wrong an ``InputError`` naming ``path``."""
+    bad = [k for k, v in sd.items() if not isinstance(v, np.ndarray) or v.dtype.kind not in "biuf"]
+    if bad:
+        raise input_error(path, f"state_dict entry {bad[0]!r} is not a number array")
+    check_finite(path, sd)
+    try:
+        return _build(sd, arch)
+    except (ValueError, IndexError, KeyError, TypeError) as err:
+        raise input_error(path, "not a usable detector checkpoint", err) from err
+
+
+def _npz_meta(path: Path, data: Mapping[str, np.ndarray]) -> dict:
+    """The JSON ``__meta__`` of one of our detector ``.npz`` files, checked."""
+    if "__meta__" not in data:
+        raise input_error(path, "not a privslam detector checkpoint (no __meta__)")
+    raw = data["__meta__"]
+    if raw.dtype.kind != "U" or raw.size != 1:
+        raise input_error(path, f"__meta__ is a {raw.dtype} {raw.shape} array, not a JSON string")
+    try:
+        meta = json.loads(str(raw))
+    except ValueError as err:
+        raise input_error(path, "__meta__ is not valid JSON", err) from err
+    if not isinstance(meta, dict):
+        raise input_error(path, f"__meta__ is a JSON {type(meta).__name__}, not an object")
+    names = meta.get("names", {})
+    if not isinstance(names, dict) or not all(k.lstrip("-").isdecimal() and len(k) < 10 and isinstance(v, str)
+                                              for k, v in names.items()):
+        raise input_error(path, "__meta__ 'names' must map class ids to names")
+    if not isinstance(meta.get("arch", "yolov8"), str) or not isinstance(meta.get("card", {}), dict):
+        raise input_error(path, "__meta__ 'arch' must be a string and 'card' an object")
+    return meta
 
 
 DOMAINS: tuple[str, ...] = ("synthetic", "real", "unknown")
@@ -456,27 +555,27 @@ def checkpoint_meta(path: str | Path) -> dict:
         return {"domain": "real", "card": {"source": "ultralytics"}}
     if not path.is_file():
         raise FileNotFoundError(f"detector weights not found: {path}")
-    with np.load(path, allow_pickle=False) as data:
-        if "__meta__" not in data:
-            raise ValueError(f"{path} is not a privslam detector checkpoint (no __meta__)")
-        meta = json.loads(str(data["__meta__"]))
+    meta = _npz_meta(path, read_npz(path, keys=("__meta__",)))
     meta.setdefault("domain", "unknown")
     meta.setdefault("card", {})
-    if meta["domain"] not in DOMAINS:
-        raise ValueError(f"{path}: unknown detector domain {meta['domain']!r} (expected one of {DOMAINS})")
+    if not isinstance(meta["domain"], str) or meta["domain"] not in DOMAINS:
+        raise input_error(path, f"unknown detector domain {meta['domain']!r} (expected one of {DOMAINS})")
     return meta
 
 
 def load_detector(path: str | Path) -> tuple[YOLOv8, dict[int, str]]:
-    """Load weights from our ``.npz`` checkpoint or an ultralytics ``.pt`` (file or folder)."""
+    """Load weights from our ``.npz`` checkpoint or an ultralytics ``.pt`` (file or folder).
+
+    A damaged or unusable file (corrupt archive, wrong or missing arrays, wrong shapes or dtypes,
+    NaN weights, a bad ``__meta__``) raises :class:`~privslam_jax.errors.InputError` naming it;
+    a missing one ``FileNotFoundError``.
+    """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"detector weights not found: {path}")
     if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as data:
-            if "__meta__" not in data:
-                raise ValueError(f"{path} is not a privslam detector checkpoint (no __meta__)")
-            meta = json.loads(str(data["__meta__"]))
-            sd = {k: data[k] for k in data.files if k != "__meta__"}
-        return _build(sd, meta.get("arch", "yolov8")), {int(k): v for k, v in meta.get("names", {}).items()}
+        data = read_npz(path)
+        meta = _npz_meta(path, data)
+        sd = {k: v for k, v in data.items() if k != "__meta__"}
+        return _build_from_file(path, sd, meta.get("arch", "yolov8")), {int(k): v for k, v in meta.get("names", {}).items()}
     return load_ultralytics(path)

@@ -31,12 +31,14 @@ from privslam_jax.inpaint.crops import crop_box, extract, paste_back
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGenerator
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 
-__all__ = ["EMBEDDED_INPAINTER", "FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward",
+__all__ = ["EMBEDDED_INPAINTER", "EMBEDDED_REAL_INPAINTER", "FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward",
            "filter_frame"]
 
 FILTER_METHODS: tuple[str, ...] = ("edgeconnect",) + baselines.METHODS
 EMBEDDED_INPAINTER = Path(__file__).resolve().parents[1] / "assets" / "inpainter_cpu16.npz"
-"""The shipped CPU-preset checkpoint (see ``docs/model_card_inpainter.md``); used when no model is given."""
+"""The shipped CPU-preset checkpoint trained on the synthetic world (``docs/model_card_inpainter.md``)."""
+EMBEDDED_REAL_INPAINTER = EMBEDDED_INPAINTER.with_name("inpainter_cpu16_real.npz")
+"""The same network fine-tuned on real street frames (``docs/model_card_inpainter.md``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +57,23 @@ class InpainterConfig:
     """Smallest crop side in frame pixels."""
     sigma: float = 2.0
     """Canny σ (EdgeConnect: 2)."""
+    prefill: str = "white"
+    """What the image generator sees in the hole: ``"white"`` (official EdgeConnect: 1) or a
+    deterministic privacy-safe fill of :mod:`~privslam_jax.inpaint.baselines` computed from the
+    crop's outside pixels (``"telea"``, ``"ns"``, ``"gray"``, ``"black"``), so the network starts
+    from that fill and learns a correction. Still independent of every hidden pixel."""
+    residual: bool = False
+    """If true, the image generator predicts a correction of the prefill instead of the pixels:
+    ``y = clip(fill + tanh(logits), 0, 1)`` (official EdgeConnect: ``y = (tanh(logits) + 1) / 2``).
+    The generator has no skip connections, so copying a good prefill through its 4× bottleneck
+    is hard; as a residual, zero logits reproduce the prefill exactly."""
+
+    def __post_init__(self):
+        if self.prefill not in PREFILLS:
+            raise ValueError(f"prefill must be one of {PREFILLS}, got {self.prefill!r}")
+
+
+PREFILLS: tuple[str, ...] = ("white", "gray", "black", "telea", "ns")
 
 
 def edgeconnect_forward(
@@ -66,8 +85,14 @@ def edgeconnect_forward(
     hole: Float[Array, "B S S 1"],
     edge_hole: Float[Array, "B S S 1"],
     use_edge_model: bool = True,
+    hole_fill: Float[Array, "B S S 3"] | None = None,
+    residual: bool = False,
 ) -> tuple[Float[Array, "B S S 3"], Float[Array, "B S S 1"], Float[Array, "B S S 3"]]:
     """Both stages; returns ``(composited image, full edge map ê, raw generator output)``.
+
+    ``hole_fill``: what G2 sees inside the hole (default 1, the official white; see
+    :attr:`InpainterConfig.prefill`); ``residual``: G2 corrects that fill
+    (:attr:`InpainterConfig.residual`).
 
     ``use_edge_model=False`` is an ablation: ê keeps only the edges outside the band (none drawn
     inside), to measure what the edge generator contributes."""
@@ -77,8 +102,16 @@ def edgeconnect_forward(
     else:
         e = jnp.zeros_like(edges)
     e_full = e * b + edges * (1 - b)
-    y = inpaint_gen(jnp.concatenate([rgb * (1 - hole) + hole, e_full], axis=-1))
+    fill = 1.0 if hole_fill is None else hole_fill
+    y = inpaint_gen(jnp.concatenate([rgb * (1 - hole) + fill * hole, e_full], axis=-1))
+    if residual:
+        y = residual_output(y, fill)
     return y * hole + rgb * (1 - hole), e_full, y
+
+
+def residual_output(y: Float[Array, "B S S 3"], fill: Float[Array, "B S S 3"] | float) -> Float[Array, "B S S 3"]:
+    """``clip(fill + tanh(logits), 0, 1)`` from G2's ``y = (tanh(logits) + 1) / 2``."""
+    return jnp.clip(fill + 2.0 * y - 1.0, 0.0, 1.0)
 
 
 class Inpainter:
@@ -94,16 +127,19 @@ class Inpainter:
         inpaint_gen.eval()
         self.graphdef, self.state = nnx.split((edge_gen, inpaint_gen))
 
-        def run(state, rgb, grey, edges, hole, edge_hole):
+        def run(state, rgb, grey, edges, hole, edge_hole, hole_fill):
             eg, ig = nnx.merge(self.graphdef, state)
-            return edgeconnect_forward(eg, ig, rgb, grey, edges, hole, edge_hole, use_edge_model)[0]
+            return edgeconnect_forward(eg, ig, rgb, grey, edges, hole, edge_hole, use_edge_model, hole_fill,
+                                       config.residual)[0]
 
         self._run = jax.jit(run)
 
     @classmethod
-    def embedded(cls) -> Inpainter:
-        """The shipped default checkpoint (:data:`EMBEDDED_INPAINTER`), loaded once per process."""
-        return _embedded()
+    def embedded(cls, domain: str = "synthetic") -> Inpainter:
+        """A checkpoint shipped in the package, loaded once per process: ``domain="synthetic"``
+        (:data:`EMBEDDED_INPAINTER`, trained on the synthetic world) or ``"real"``
+        (:data:`EMBEDDED_REAL_INPAINTER`, fine-tuned on real street frames)."""
+        return _embedded(domain)
 
     def without_edge_model(self) -> Inpainter:
         """The same generators with the edge generator switched off (ablation, see
@@ -131,32 +167,75 @@ class Inpainter:
 
     @classmethod
     def load(cls, path: str | Path) -> Inpainter:
-        """Read an ``.npz`` written by :meth:`save`."""
+        """Read an ``.npz`` written by :meth:`save`.
+
+        Anything else raises :class:`~privslam_jax.errors.InputError` naming the file (a missing
+        file ``FileNotFoundError``): an archive :func:`~privslam_jax.data.npz.read_npz` refuses
+        (truncated, corrupt, object arrays, sizes its headers cannot hold), config entries of the
+        wrong type or out of range, missing or extra arrays, wrong shapes or dtypes, NaN or inf
+        weights. The arrays' names and shapes are checked before the network is built, so a config
+        claiming a huge width allocates nothing.
+        """
+        from privslam_jax.data.npz import check_finite, read_npz
+        from privslam_jax.errors import input_error
+
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"inpainter checkpoint not found: {path}")
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
+        arrays = read_npz(path)
         fields = {f.name: f.type for f in dataclasses.fields(InpainterConfig)}
         kw = {}
-        for k in fields:
+        for k, kind in fields.items():
             if f"config/{k}" in arrays:
-                v = arrays.pop(f"config/{k}").item()
-                kw[k] = float(v) if isinstance(v, float) else int(v)
-        config = InpainterConfig(**kw)
+                a = arrays.pop(f"config/{k}")
+                v = a.item() if a.size == 1 and a.dtype.kind in "biufU" else None
+                ok = {"int": isinstance(v, int) and not isinstance(v, bool),
+                      "float": isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v),
+                      "str": isinstance(v, str), "bool": isinstance(v, bool)}.get(kind, v is not None)
+                if not ok:
+                    raise input_error(path, f"config/{k} is not a single {kind} value ({a.dtype} {a.shape})")
+                kw[k] = v if isinstance(v, str | bool) else float(v) if isinstance(v, float) else int(v)
+        try:
+            config = InpainterConfig(**kw)
+        except (ValueError, TypeError) as err:
+            raise input_error(path, "invalid inpainter config", err) from err
+        if config.width < 1 or not 0 <= config.num_residual_blocks <= len(arrays):
+            raise input_error(path, f"config width {config.width} / {config.num_residual_blocks} residual blocks "
+                                    f"do not fit the {len(arrays)} arrays of the file")
+
+        def shapes(width: int) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+            state = cls.init(dataclasses.replace(config, width=width)).state
+            return {".".join(map(str, k)): (v[...].shape, np.dtype(v[...].dtype)) for k, v in nnx.to_flat_state(state)}
+
+        # Every dimension of the network is affine in its width: derive the expected shapes from two
+        # tiny networks and check the file against them before building the real one.
+        try:
+            one, two = shapes(1), shapes(2)
+        except (ValueError, TypeError) as err:
+            raise input_error(path, "invalid inpainter config", err) from err
+        for name, (s1, dtype) in one.items():
+            want = tuple(a + (b - a) * (config.width - 1) for a, b in zip(s1, two[name][0]))
+            if name not in arrays:
+                raise input_error(path, f"missing {name}")
+            if arrays[name].shape != want or arrays[name].dtype != dtype:
+                raise input_error(path, f"{name} is {arrays[name].dtype} {arrays[name].shape}, expected {dtype} {want}")
+        extra = sorted(set(arrays) - set(one))
+        if extra:
+            raise input_error(path, f"unexpected arrays {extra[:3]}")
+        check_finite(path, arrays)
         model = cls.init(config)
         flat = dict(nnx.to_flat_state(model.state))
         new = []
         for key, var in flat.items():
             name = ".".join(map(str, key))
             if name not in arrays:
-                raise ValueError(f"{path}: missing {name}")
+                raise input_error(path, f"missing {name}")
             val = arrays.pop(name)
             if val.shape != var[...].shape:
-                raise ValueError(f"{path}: {name} has shape {val.shape}, expected {var[...].shape}")
+                raise input_error(path, f"{name} has shape {val.shape}, expected {var[...].shape}")
             new.append((key, var.replace(jnp.asarray(val))))
         if arrays:
-            raise ValueError(f"{path}: unexpected arrays {sorted(arrays)[:3]}")
+            raise input_error(path, f"unexpected arrays {sorted(arrays)[:3]}")
         model.state = nnx.from_flat_state(new)
         return model
 
@@ -167,15 +246,20 @@ class Inpainter:
         grey = to_grey(rgb)
         edges, edge_hole = safe_canny(grey, hole, sigma=cfg.sigma)
         f = lambda x: jnp.asarray(x, jnp.float32)[None, ..., None]  # noqa: E731
-        out = self._run(self.state, jnp.asarray(rgb)[None], f(grey), f(edges), f(hole), f(edge_hole))
+        fill = baselines.fill(rgb, np.asarray(hole, bool), cfg.prefill)
+        out = self._run(self.state, jnp.asarray(rgb)[None], f(grey), f(edges), f(hole), f(edge_hole),
+                        jnp.asarray(fill)[None])
         return np.asarray(out[0])
 
 
-@functools.lru_cache(maxsize=1)
-def _embedded() -> Inpainter:
-    if not EMBEDDED_INPAINTER.is_file():
-        raise FileNotFoundError(f"the embedded inpainter {EMBEDDED_INPAINTER} is missing; pass a model path")
-    return Inpainter.load(EMBEDDED_INPAINTER)
+@functools.lru_cache(maxsize=2)
+def _embedded(domain: str) -> Inpainter:
+    paths = {"synthetic": EMBEDDED_INPAINTER, "real": EMBEDDED_REAL_INPAINTER}
+    if domain not in paths:
+        raise ValueError(f"domain must be one of {sorted(paths)}, got {domain!r}")
+    if not paths[domain].is_file():
+        raise FileNotFoundError(f"the embedded {domain} inpainter {paths[domain]} is missing; pass a model path")
+    return Inpainter.load(paths[domain])
 
 
 def filter_frame(

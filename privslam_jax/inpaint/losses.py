@@ -27,6 +27,7 @@ __all__ = [
     "generator_adversarial_loss",
     "gram",
     "l1_hole_loss",
+    "masked_hole_loss",
     "perceptual_loss",
     "style_loss",
 ]
@@ -62,6 +63,15 @@ def l1_hole_loss(output: ArrayLike, target: ArrayLike, hole: ArrayLike) -> Float
     """``mean|output − target| / mean(hole)`` (official; guards an empty hole)."""
     output, target, hole = jnp.asarray(output), jnp.asarray(target), jnp.asarray(hole)
     return jnp.mean(jnp.abs(output - target)) / jnp.maximum(jnp.mean(hole), 1e-6)
+
+
+def masked_hole_loss(output: ArrayLike, target: ArrayLike, hole: ArrayLike, power: int = 2) -> Float[Array, ""]:
+    """``Σ hole·|output − target|^power / Σ hole`` over pixels and channels: the error **inside** the
+    hole only (the filter pastes nothing else). ``power=2`` is the MSE that PSNR measures, whose
+    minimiser is the conditional mean; ``power=1`` the median."""
+    output, target, hole = jnp.asarray(output), jnp.asarray(target), jnp.asarray(hole)
+    err = jnp.abs(output - target) ** power * hole
+    return jnp.sum(err) / jnp.maximum(jnp.sum(hole) * output.shape[-1], 1e-6)
 
 
 def gram(f: ArrayLike) -> Float[Array, "B C C"]:

@@ -8,6 +8,7 @@ whose measured real-frame recall is low.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -125,7 +126,9 @@ def filter_sequence(
     With ``masks_source="detect"`` the detector runs over the whole sequence first (threshold
     ``conf``, default the paper's 0.4; ``tta`` and ``propagate`` as in
     :func:`privslam_jax.detect.temporal.detect_sequence`), then each frame is filled.
-    ``filter_report.json`` records the detector (and its training domain), the settings and the
+    ``method="edgeconnect"`` without ``model_path`` uses the embedded inpainter made for the frames:
+    the synthetic-world one on ``privslam synth`` output, the real-frame one on anything else.
+    ``filter_report.json`` records the detector (and its training domain), the inpainter, the settings and the
     number of masks per frame by origin (detected, promoted low-score, propagated).
     """
     from privslam_jax.data.images import read_image
@@ -145,15 +148,13 @@ def filter_sequence(
     if len(seq) == 0:
         raise ValueError(f"{sequence} has no frames")
     report: dict = {"method": method, "masks": masks_source, "frames": len(seq)}
+    synthetic = seq.has_extra("background")  # privslam synth writes background/ (the object-free render)
     detector = None
     if masks_source == "detect":
-        import dataclasses
-
         from privslam_jax.detect import PRIVACY_PRESET, Detector
         from privslam_jax.detect.temporal import PropagationConfig
 
         preset = PRIVACY_PRESET if conf is None else dataclasses.replace(PRIVACY_PRESET, conf=conf)
-        synthetic = seq.has_extra("background")  # privslam synth writes background/ (the object-free render)
         if detector_path is not None:
             detector = Detector.from_weights(detector_path, preset)
         else:  # the embedded detector made for these frames
@@ -166,7 +167,10 @@ def filter_sequence(
                               "tta": tta, "privacy_warning": mismatch}
     inpainter = None
     if method == "edgeconnect":
-        inpainter = Inpainter.embedded() if model_path is None else Inpainter.load(model_path)
+        domain = "synthetic" if synthetic else "real"  # the embedded inpainter made for these frames
+        inpainter = Inpainter.embedded(domain) if model_path is None else Inpainter.load(model_path)
+        report["inpainter"] = {"weights": str(model_path) if model_path is not None else f"embedded ({domain})",
+                               "config": dataclasses.asdict(inpainter.config)}
 
     out = Path(out)
     out_dir = out / "sequences" / seq.name if kitti else out / seq.name

@@ -36,9 +36,10 @@ import optax
 from flax import nnx
 from tqdm import tqdm
 
+from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint import losses as L
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, Discriminator, EdgeGenerator, InpaintGenerator
-from privslam_jax.inpaint.filter import Inpainter, InpainterConfig
+from privslam_jax.inpaint.filter import PREFILLS, Inpainter, InpainterConfig, residual_output
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 
 __all__ = ["DataFn", "InpaintTrainer", "TrainConfig", "prepare_batch", "train"]
@@ -103,6 +104,14 @@ class TrainConfig:
     """λ_s (used only with a feature_fn)."""
     sigma: float = 2.0
     """Canny σ."""
+    prefill: str = "white"
+    """What G2 sees in the hole (:attr:`~privslam_jax.inpaint.filter.InpainterConfig.prefill`; official "white")."""
+    hole_loss: str = "l1"
+    """G2's reconstruction term: ``"l1"`` (official: ``mean|out − y| / mean(mask)`` over the whole
+    crop), ``"l1_hole"`` or ``"l2_hole"`` (:func:`~privslam_jax.inpaint.losses.masked_hole_loss`:
+    inside the hole only; L2 is what PSNR measures). Weighted by ``l1_weight``."""
+    residual: bool = False
+    """G2 predicts a correction of the prefill (:attr:`~privslam_jax.inpaint.filter.InpainterConfig.residual`)."""
     seed: int = 0
     """Model-initialisation seed (the data seed belongs to the data source)."""
     checkpoint_every: int = 500
@@ -116,6 +125,10 @@ class TrainConfig:
                 raise ValueError(f"bad stage {(stage, steps)}; stages are {STAGES} with steps >= 0")
         if self.size % 4:
             raise ValueError(f"size must be a multiple of 4, got {self.size}")
+        if self.hole_loss not in ("l1", "l1_hole", "l2_hole"):
+            raise ValueError(f"hole_loss must be l1, l1_hole or l2_hole, got {self.hole_loss!r}")
+        if self.prefill not in PREFILLS:
+            raise ValueError(f"prefill must be one of {PREFILLS}, got {self.prefill!r}")
 
     @property
     def g2_steps(self) -> int:
@@ -136,8 +149,11 @@ class TrainConfig:
         raise ValueError(f"step {step} beyond the schedule ({acc} steps)")
 
 
-def prepare_batch(images: np.ndarray, holes: np.ndarray, sigma: float = 2.0) -> dict[str, np.ndarray]:
-    """Host-side inputs: rgb, grey, true edges, leak-free input edges, hole, edge hole (B,S,S,·)."""
+def prepare_batch(images: np.ndarray, holes: np.ndarray, sigma: float = 2.0, prefill: str = "white"
+                  ) -> dict[str, np.ndarray]:
+    """Host-side inputs: rgb, grey, true edges, leak-free input edges, hole, edge hole, and G2's
+    hole fill (``prefill``: a :mod:`~privslam_jax.inpaint.baselines` fill of the image with the hole
+    zeroed; "white" = 1 as the official code) (B,S,S,·)."""
     if images.ndim != 4 or images.shape[-1] != 3 or holes.shape != images.shape[:3]:
         raise ValueError(f"need images (B, S, S, 3) and holes (B, S, S), got {images.shape}, {holes.shape}")
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("grey", "edges_true", "edges_in", "edge_hole")}
@@ -152,6 +168,8 @@ def prepare_batch(images: np.ndarray, holes: np.ndarray, sigma: float = 2.0) -> 
     batch = {k: np.stack(v)[..., None].astype(np.float32) for k, v in out.items()}
     batch["rgb"] = images.astype(np.float32)
     batch["hole"] = holes[..., None].astype(np.float32)
+    batch["fill"] = np.stack([baselines.fill(np.where(h[..., None], np.float32(0), img), h, prefill)
+                              for img, h in zip(batch["rgb"], holes.astype(bool), strict=True)])
     return batch
 
 
@@ -211,13 +229,18 @@ def _inpaint_g_step(c: TrainConfig, feature_fn, g, d, opt, b, edges):
     m, y = b["hole"], b["rgb"]
 
     def loss_fn(g, d):
-        out = g(jnp.concatenate([y * (1 - m) + m, edges], axis=-1))
+        out = g(jnp.concatenate([y * (1 - m) + b["fill"] * m, edges], axis=-1))
+        if c.residual:
+            out = residual_output(out, b["fill"])
         if c.inpaint_adv_weight:
             _, ff = d(out)
             adv = L.generator_adversarial_loss(ff[-1])
         else:  # L1-only G2: the discriminator is not evaluated at all
             adv = jnp.zeros(())
-        l1 = L.l1_hole_loss(out, y, m)
+        if c.hole_loss == "l1":
+            l1 = L.l1_hole_loss(out, y, m)
+        else:
+            l1 = L.masked_hole_loss(out, y, m, power=2 if c.hole_loss == "l2_hole" else 1)
         loss = c.inpaint_adv_weight * adv + c.l1_weight * l1
         if feature_fn is not None:
             loss = loss + c.perceptual_weight * L.perceptual_loss(feature_fn(out), feature_fn(y))
@@ -311,14 +334,14 @@ class InpaintTrainer:
         """An :class:`Inpainter` on copies of the current generators."""
         c = self.config
         cfg = InpainterConfig(width=c.width, num_residual_blocks=c.num_residual_blocks,
-                              size=size or c.size, sigma=c.sigma)
+                              size=size or c.size, sigma=c.sigma, prefill=c.prefill, residual=c.residual)
         return Inpainter(nnx.clone(self.edge_g), nnx.clone(self.inpaint_g), cfg)
 
 
 def _grid(batch: dict[str, np.ndarray], outs: dict[str, jax.Array], rows: int = 4) -> np.ndarray:
     """PNG grid: masked input | input edges | predicted edges | output | target, one row each."""
     m = batch["hole"]
-    masked = batch["rgb"] * (1 - m) + m
+    masked = batch["fill"]  # the image with G2's hole fill (white for the official prefill)
     cols = [masked, np.repeat(batch["edges_in"], 3, -1)]
     if "edges" in outs:
         cols.append(np.repeat(np.asarray(outs["edges"]), 3, -1))
@@ -337,9 +360,15 @@ def train(
     *,
     max_steps: int | None = None,
     feature_fn: Callable | None = None,
+    init: Inpainter | None = None,
     progress: bool = True,
 ) -> InpaintTrainer:
     """Train (or resume from ``workdir/checkpoints``) up to ``max_steps`` or the schedule's end.
+
+    ``init`` (fine-tuning): start both generators from this inpainter's weights instead of the
+    random initialisation (discriminators and optimiser moments start fresh); ignored when a
+    checkpoint is resumed, which already holds the fine-tuned weights. A residual config started
+    from a non-residual inpainter gets G2's last layer zeroed, so it starts at its prefill exactly.
 
     Writes ``workdir/checkpoints/<step>`` (orbax), ``workdir/samples/step_<n>.png`` and
     ``workdir/log.csv`` (step, stage, seconds, losses). ``max_steps`` stops early (e.g. to
@@ -359,6 +388,17 @@ def train(
         start = int(mngr.latest_step())
         restored = mngr.restore(start, args=ocp.args.StandardRestore(trainer.state_dict()))
         trainer.load_state_dict(restored)
+    elif init is not None:
+        if (init.config.width, init.config.num_residual_blocks) != (config.width, config.num_residual_blocks):
+            raise ValueError(f"init inpainter has width {init.config.width}, {init.config.num_residual_blocks} blocks; "
+                             f"the training config {config.width}, {config.num_residual_blocks}")
+        eg, ig = init.modules
+        nnx.update(trainer.edge_g, nnx.state(eg))
+        nnx.update(trainer.inpaint_g, nnx.state(ig))
+        if config.residual and not init.config.residual:
+            last = trainer.inpaint_g.dec3
+            last.kernel[...] = jnp.zeros_like(last.kernel[...])
+            last.bias[...] = jnp.zeros_like(last.bias[...])
     end = config.total_steps if max_steps is None else min(max_steps, config.total_steps)
     log_path = workdir / "log.csv"
     if log_path.is_file():  # drop rows logged after the checkpoint we resume from
@@ -368,7 +408,7 @@ def train(
     for step in bar:
         stage = config.stage_at(step)
         images, holes = data(step, config.batch_size)
-        batch = prepare_batch(images, holes, config.sigma)
+        batch = prepare_batch(images, holes, config.sigma, config.prefill)
         t0 = time.perf_counter()
         logs, outs = trainer.step(stage, batch)
         dt = time.perf_counter() - t0

@@ -107,16 +107,31 @@ def load_npz(module: nnx.Module, path: str | Path, prefix: str = "") -> None:
     ``prefix`` selects one network of a multi-network file, e.g. ``"edge_generator/"``;
     non-parameter arrays under the prefix (``input``, ``output``, ``features*``, ``*.sigma``)
     are ignored.
+
+    A damaged or unusable file (an archive :func:`~privslam_jax.data.npz.read_npz` refuses, no
+    parameters under ``prefix``, unknown keys, wrong shapes, missing parameters, NaN or inf
+    values) raises :class:`~privslam_jax.errors.InputError` naming it; ``module`` is then left
+    partly loaded. A missing file raises ``FileNotFoundError``.
     """
+    from privslam_jax.data.npz import check_finite, read_npz
+    from privslam_jax.errors import input_error
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"EdgeConnect weights not found: {path}")
-    with np.load(path) as data:
-        state = {
-            k[len(prefix):]: data[k]
-            for k in data.files
-            if k.startswith(prefix) and "." in k[len(prefix):] and not k.endswith(".sigma")
-        }
+    data = read_npz(path)
+    state = {
+        k[len(prefix):]: v
+        for k, v in data.items()
+        if k.startswith(prefix) and "." in k[len(prefix):] and not k.endswith(".sigma")
+    }
     if not state:
-        raise ValueError(f"{path} has no parameters under prefix {prefix!r}")
-    load_state_dict(module, state)
+        raise input_error(path, f"no parameters under prefix {prefix!r}")
+    bad = [k for k, v in state.items() if v.dtype.kind not in "fiu"]
+    if bad:
+        raise input_error(path, f"{prefix}{bad[0]} is {state[bad[0]].dtype}, not a number array")
+    check_finite(path, state)
+    try:
+        load_state_dict(module, state)
+    except ValueError as err:
+        raise input_error(path, f"does not fit the {type(module).__name__}", err) from err

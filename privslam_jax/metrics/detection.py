@@ -179,22 +179,17 @@ def detection_metrics(images: Iterable[ImageEval], thresholds: np.ndarray = IOU_
 def evaluate_yolo_folder(detector, root: str | Path, split: str = "val", class_map: Sequence[int] | None = None) -> DetectionMetrics:
     """Run ``detector.detect`` on a YOLO dataset split and compute the metrics (native pixels).
 
-    Images are read with ``cv2.imread`` (uint8, BGR → RGB) as ultralytics does. ``class_map``
+    Images are read with ``cv2.imread`` (uint8, BGR → RGB) as ultralytics does (through :func:`~privslam_jax.data.images.read_rgb8`, which refuses damaged files). ``class_map``
     optionally maps dataset class ids to detector class ids. For ultralytics ``val`` numbers use a
     detector configured with ``DetectorConfig(mode="square", conf=0.001, iou=0.7,
     multi_label=True)``.
     """
-    import cv2
 
+    from privslam_jax.data.images import read_rgb8
     from privslam_jax.data.yolo import YoloDataset, cxcywhn_to_xyxy
 
     ds = YoloDataset(root, split)
-    images = []
-    for path in ds.image_paths:
-        img = cv2.imread(str(path))
-        if img is None:
-            raise ValueError(f"cannot read image {path}")
-        images.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+    images = [read_rgb8(path) for path in ds.image_paths]
     dets = detector.detect(images)
     evals = []
     for i, (img, det) in enumerate(zip(images, dets)):
