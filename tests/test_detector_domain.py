@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import cv2
 import numpy as np
@@ -184,3 +185,17 @@ def test_write_failure_is_an_error_not_a_shorter_sequence(tmp_path, capsys):
                  "--out", str(out)]) == 2
     captured = capsys.readouterr()
     assert "000001.png" in captured.err and "written" not in captured.out
+
+
+def test_filter_picks_the_embedded_inpainter_for_the_frames(tmp_path):
+    """EdgeConnect without --model: the real-frame checkpoint (Telea prefill, residual) on real frames,
+    the synthetic-world one on a privslam synth output; filter_report.json names it."""
+    for synthetic, name in ((False, "real"), (True, "synthetic")):
+        seq = _real_like_sequence(tmp_path / name, synthetic=synthetic)
+        out = tmp_path / f"o_{name}"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # the real-frame detector's recall warning
+            assert main(["filter", str(seq), "--masks", "detect", "--method", "edgeconnect", "--out", str(out)]) == 0
+        inp = json.loads((out / "sequences" / "s" / "filter_report.json").read_text())["inpainter"]
+        assert inp["weights"] == f"embedded ({name})"
+        assert (inp["config"]["prefill"], inp["config"]["residual"]) == (("white", False) if synthetic else ("telea", True))

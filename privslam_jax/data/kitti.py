@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from privslam_jax.data.images import read_image, read_raw
-from privslam_jax.data.trajectory_io import _check_fits_trajectory, read_kitti_matrices
+from privslam_jax.data.trajectory_io import _check_fits_trajectory, _read_rows, read_kitti_matrices
 from privslam_jax.data.yolo import cxcywhn_to_xyxy, read_yolo_labels
 from privslam_jax.errors import InputError, input_error
 from privslam_jax.types import Camera, Trajectory
@@ -90,27 +90,13 @@ def read_calib(path: str | os.PathLike) -> dict[str, np.ndarray]:
 def _read_times(path: Path) -> np.ndarray:
     """``times.txt``: one finite timestamp per line (``#`` comments and blank lines allowed), strictly
     increasing; :class:`~privslam_jax.errors.InputError` naming the file and line otherwise."""
-    times: list[float] = []
-    prev = 0
-    try:
-        with open(path, encoding="utf-8") as f:
-            for lineno, line in enumerate(f, 1):
-                text = line.split("#", 1)[0].strip()
-                if not text:
-                    continue
-                try:
-                    t = float(text)
-                except ValueError:
-                    raise InputError(f"{path}:{lineno}: expected one timestamp per line, got {text[:60]!r}") from None
-                if not math.isfinite(t):
-                    raise InputError(f"{path}: NaN or infinite timestamp at line {lineno}")
-                if times and not t > times[-1]:  # evo and our readers reject it, and ATE would silently skip frames
-                    raise InputError(f"{path}: timestamps must increase, line {lineno} is not after line {prev}")
-                times.append(t)
-                prev = lineno
-    except UnicodeDecodeError as err:
-        raise input_error(path, "cannot parse timestamps (not UTF-8 text)", err) from err
-    return np.array(times, dtype=np.float64)
+    linenos: list[int] = []
+    times = _read_rows(path, 1, "timestamps", linenos)[:, 0]
+    bad = np.flatnonzero(np.diff(times) <= 0)  # evo and our readers reject it, and ATE would silently skip frames
+    if bad.size:
+        raise InputError(f"{path}: timestamps must increase, line {linenos[bad[0] + 1]} is not after line "
+                         f"{linenos[bad[0]]}")
+    return times
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,7 +13,7 @@ from privslam_jax.inpaint.edgeconnect import (
 )
 from privslam_jax.inpaint.weights import load_npz, load_state_dict
 from privslam_jax.inpaint.baselines import LEAKY_METHODS, METHODS, SAFE_METHODS, fill
-from privslam_jax.inpaint.data import CropBank, FolderData
+from privslam_jax.inpaint.data import CropBank, FolderData, Mixture, RealHoleData
 from privslam_jax.inpaint.crops import CropBox, crop_box, extract, paste_back
 from privslam_jax.inpaint.filter import (
     FILTER_METHODS,
@@ -52,6 +52,8 @@ __all__ = [
     "CropBank",
     "CropBox",
     "FolderData",
+    "Mixture",
+    "RealHoleData",
     "Inpainter",
     "InpainterConfig",
     "InpaintTrainer",

@@ -200,6 +200,21 @@ def image_paths(*sources: str | Path) -> list[Path]:
     return out
 
 
+class _ImageCache:
+    """``cache(i)``: the decoded RGB uint8 image ``paths[i]``, at most ``size`` kept (oldest dropped)."""
+
+    def __init__(self, paths: list[Path], size: int):
+        self.paths, self.size = paths, size
+        self._images: dict[int, np.ndarray] = {}
+
+    def __call__(self, i: int) -> np.ndarray:
+        if i not in self._images:
+            if len(self._images) >= self.size:
+                self._images.pop(next(iter(self._images)))
+            self._images[i] = read_rgb8(self.paths[i])
+        return self._images[i]
+
+
 @dataclasses.dataclass(frozen=True)
 class ObjectShape:
     """One object's binary silhouette (tight bounding box) and where it sat in its frame."""
@@ -269,15 +284,7 @@ class RealHoleData:
         self.paths, self.shapes, self.size, self.seed = list(paths), list(shapes), size, seed
         self.free_prob, self.grey_prob, self.dilation = free_prob, grey_prob, dilation
         self.pad, self.min_crop = pad, min_crop
-        self._cache: dict[int, np.ndarray] = {}
-        self._cache_max = cache
-
-    def _image(self, i: int) -> np.ndarray:
-        if i not in self._cache:
-            if len(self._cache) >= self._cache_max:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[i] = read_rgb8(self.paths[i])
-        return self._cache[i]
+        self._image = _ImageCache(self.paths, cache)
 
     def sample(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One ``(target (S, S, 3) float32, hole (S, S) bool)``."""
@@ -333,15 +340,7 @@ class FolderData:
         self.folder = Path(folder)
         self.paths = image_paths(self.folder)
         self.size, self.seed, self.box_prob = size, seed, box_prob
-        self._cache: dict[int, np.ndarray] = {}
-        self._cache_max = cache
-
-    def _image(self, i: int) -> np.ndarray:
-        if i not in self._cache:
-            if len(self._cache) >= self._cache_max:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[i] = read_rgb8(self.paths[i])
-        return self._cache[i]
+        self._image = _ImageCache(self.paths, cache)
 
     def __call__(self, step: int, batch: int) -> tuple[np.ndarray, np.ndarray]:
         rng = np.random.default_rng((self.seed, step))

@@ -38,7 +38,7 @@ FILTER_METHODS: tuple[str, ...] = ("edgeconnect",) + baselines.METHODS
 EMBEDDED_INPAINTER = Path(__file__).resolve().parents[1] / "assets" / "inpainter_cpu16.npz"
 """The shipped CPU-preset checkpoint trained on the synthetic world (``docs/model_card_inpainter.md``)."""
 EMBEDDED_REAL_INPAINTER = EMBEDDED_INPAINTER.with_name("inpainter_cpu16_real.npz")
-"""The same network fine-tuned on real street frames (``docs/model_card_inpainter.md``)."""
+"""The same network fine-tuned on real street frames (``docs/model_card_inpainter_real.md``)."""
 
 
 @dataclasses.dataclass(frozen=True)
