@@ -91,6 +91,7 @@ def _annotate(rgb: np.ndarray, boxes: np.ndarray, scores: np.ndarray, classes: n
 
 
 def run(args: argparse.Namespace) -> int:
+    from privslam_jax.data.files import write_atomic
     from privslam_jax.data.images import read_rgb8, write_image_file
     from privslam_jax.detect.predict import PRIVACY_CLASSES, Detector, DetectorConfig
 
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
                 png = out / (Path(rel.replace("/", "__")).with_suffix(".png").name)
                 write_image_file(png, _annotate(img, boxes, scores, cls, detector.names))
                 bar.update(1)
-    (out / "detections.json").write_text(json.dumps({"images": records}, indent=1))
+    write_atomic(out / "detections.json", json.dumps({"images": records}, indent=1))
     n = sum(len(r["detections"]) for r in records)
     print(f"{n} detections in {len(records)} images -> {out / 'detections.json'}")
     return 0

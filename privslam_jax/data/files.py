@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["write_atomic", "write_figure"]
+__all__ = ["write_atomic", "write_figure", "write_npz"]
 
 
 def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
@@ -33,4 +33,16 @@ def write_figure(fig, path: str | os.PathLike, dpi: int = 100) -> None:
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
+    write_atomic(path, buf.getvalue())
+
+
+def write_npz(path: str | os.PathLike, *, compressed: bool = False, **arrays) -> None:
+    """``np.savez[_compressed]`` into memory, then :func:`write_atomic` to ``path`` (used as given: no
+    ``.npz`` is appended)."""
+    import io
+
+    import numpy as np
+
+    buf = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buf, **arrays)
     write_atomic(path, buf.getvalue())

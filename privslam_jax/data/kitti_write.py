@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from privslam_jax.data.files import write_atomic
 from privslam_jax.data.images import write_rgb, write_uint16
 from privslam_jax.data.kitti import DEPTH_SCALE
 from privslam_jax.data.trajectory_io import write_kitti_matrices
@@ -75,8 +76,9 @@ def write_kitti_sequence(
     if baseline is None:
         baseline = getattr(getattr(seq, "config", None), "baseline", 0.54)
     seq_dir.mkdir(parents=True, exist_ok=True)
-    (seq_dir / "calib.txt").write_text(_calib_text(float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), float(baseline)))
-    (seq_dir / "instance_classes.json").write_text(
+    write_atomic(seq_dir / "calib.txt", _calib_text(float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy),
+                                                   float(baseline)))
+    write_atomic(seq_dir / "instance_classes.json",
         json.dumps({str(int(k)): int(v) for k, v in sorted(seq.instance_classes.items())}, indent=0) + "\n"
     )
     times, poses = [], []
@@ -106,7 +108,7 @@ def write_kitti_sequence(
             collect.append(SimpleNamespace(class_ids=np.asarray(f.class_ids), instance_of_box=None if inst is None else np.asarray(inst)))
         times.append(float(f.timestamp))
         poses.append(np.asarray(f.T_w_c, np.float64))
-    (seq_dir / "times.txt").write_text("".join(f"{t:.6e}\n" for t in times))
+    write_atomic(seq_dir / "times.txt", "".join(f"{t:.6e}\n" for t in times))
     write_kitti_matrices(out / "poses" / f"{name}.txt", np.stack(poses))
     return seq_dir
 

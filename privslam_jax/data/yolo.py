@@ -114,11 +114,10 @@ def write_yolo_labels(
     if c.shape[0] != b.shape[0]:
         raise ValueError(f"{c.shape[0]} class ids but {b.shape[0]} boxes for {path}")
     n = xyxy_to_cxcywhn(b, width, height)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
-        for k, row in zip(c, n):
-            f.write(f"{int(k)} {row[0]:.6f} {row[1]:.6f} {row[2]:.6f} {row[3]:.6f}\n")
+    from privslam_jax.data.files import write_atomic
+
+    write_atomic(path, "".join(f"{int(k)} {row[0]:.6f} {row[1]:.6f} {row[2]:.6f} {row[3]:.6f}\n"
+                               for k, row in zip(c, n)))
 
 
 @dataclasses.dataclass(frozen=True)

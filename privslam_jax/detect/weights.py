@@ -540,7 +540,12 @@ def save_checkpoint(model: YOLOv8, path: str | Path, names: Mapping[int, str] | 
             "reg_max": model.config.reg_max, "names": {str(k): v for k, v in (names or {}).items()},
             "domain": domain, "card": dict(card or {})}
     meta["arch"] = model.config.arch
-    np.savez(path, __meta__=np.array(json.dumps(meta)), **model_state_dict(model))
+    from privslam_jax.data.files import write_npz
+
+    path = Path(path)
+    if path.suffix != ".npz":  # np.savez's naming, kept
+        path = path.with_name(path.name + ".npz")
+    write_npz(path, __meta__=np.array(json.dumps(meta)), **model_state_dict(model))
 
 
 def checkpoint_meta(path: str | Path) -> dict:

@@ -27,6 +27,7 @@ import numpy as np
 from jaxtyping import Bool
 from tqdm import tqdm
 
+from privslam_jax.data.files import write_npz
 from privslam_jax.data.images import read_raw, read_rgb8
 from privslam_jax.inpaint.crops import CropBox, crop_box
 from privslam_jax.inpaint.masks import dilate, random_box_mask, random_irregular_mask
@@ -97,7 +98,7 @@ class CropBank:
         return imgs, holes
 
     def save(self, path: str | Path) -> None:
-        np.savez_compressed(path, images=self.images, holes=self.holes)
+        write_npz(path, compressed=True, images=self.images, holes=self.holes)
 
     @classmethod
     def load(cls, path: str | Path, seed: int = 0) -> CropBank:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from privslam_jax.data.files import write_atomic
 from privslam_jax.data.images import read_rgb8
 from privslam_jax.inpaint.data import ObjectShape, place_shape
 from privslam_jax.inpaint.filter import Inpainter, filter_frame
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.out is not None:
         a.out.parent.mkdir(parents=True, exist_ok=True)
         names = ", ".join(f"`{s}`" for s in a.sequence)
-        a.out.write_text(f"Sequences {names}, dilation {a.dilation}, model `{a.model or 'embedded'}`\n\n{table}\n")
+        write_atomic(a.out, f"Sequences {names}, dilation {a.dilation}, model `{a.model or 'embedded'}`\n\n{table}\n")
     return 0
 
 

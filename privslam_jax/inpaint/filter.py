@@ -163,7 +163,9 @@ class Inpainter:
         """Write the generators' state and config to one ``.npz`` (portable, no pickle)."""
         flat = {".".join(map(str, k)): np.asarray(v) for k, v in nnx.to_flat_state(self.state)}
         cfg = {f"config/{k}": np.asarray(v) for k, v in dataclasses.asdict(self.config).items()}
-        np.savez_compressed(path, **flat, **cfg)
+        from privslam_jax.data.files import write_npz
+
+        write_npz(path, compressed=True, **flat, **cfg)
 
     @classmethod
     def load(cls, path: str | Path) -> Inpainter:
