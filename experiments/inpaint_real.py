@@ -119,7 +119,6 @@ def main(argv: list[str] | None = None) -> int:
         from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
         seqs = [make_sequence(SynthConfig(num_frames=a.synthetic_frames, seed=s)) for s in range(901, 906)]
-        res = {}
         frames = lambda: (s[i] for s in seqs for i in range(len(s)))  # noqa: E731
         res = evaluate_frames(frames(), BASELINES, progress=False)
         for name, model in models.items():
