@@ -225,19 +225,9 @@ class Inpainter:
         if extra:
             raise input_error(path, f"unexpected arrays {extra[:3]}")
         check_finite(path, arrays)
-        model = cls.init(config)
-        flat = dict(nnx.to_flat_state(model.state))
-        new = []
-        for key, var in flat.items():
-            name = ".".join(map(str, key))
-            if name not in arrays:
-                raise input_error(path, f"missing {name}")
-            val = arrays.pop(name)
-            if val.shape != var[...].shape:
-                raise input_error(path, f"{name} has shape {val.shape}, expected {var[...].shape}")
-            new.append((key, var.replace(jnp.asarray(val))))
-        if arrays:
-            raise input_error(path, f"unexpected arrays {sorted(arrays)[:3]}")
+        model = cls.init(config)  # names, shapes and dtypes were checked above
+        new = [(key, var.replace(jnp.asarray(arrays[".".join(map(str, key))])))
+               for key, var in nnx.to_flat_state(model.state)]
         model.state = nnx.from_flat_state(new)
         return model
 
