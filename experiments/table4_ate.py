@@ -205,11 +205,12 @@ def _cache_name(method: str, domain: str) -> str:
 def _filtered(sequence: Path, out: Path, method: str, detector: Path | None) -> Path:
     """``sequence`` filtered with ``method`` on detections into ``out`` (reused when complete)."""
     from privslam_jax.inpaint.sequence import filter_sequence
+    from privslam_jax.runs import run_is_complete
 
     done = out / "sequences" / sequence.name
-    if not (done / "instance_classes.json").is_file():  # written last: its presence means complete
+    if not run_is_complete(done):
         print(f"filtering {sequence} with {method} into {out}", flush=True)
-        filter_sequence(sequence, out, method, "detect", detector)
+        filter_sequence(sequence, out, method, "detect", detector, overwrite=True)
     return done
 
 
@@ -217,16 +218,17 @@ def _synth_tasks(cfg: Config, synth_dir: str | None) -> list[Task]:
     """Render each synthetic world once (if needed); one run per world and mode."""
     from privslam_jax.data.kitti_write import write_kitti_sequence
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
+    from privslam_jax.runs import run_is_complete
 
     root = Path(synth_dir or Path(tempfile.gettempdir()) / f"privslam_table4_synth_{cfg.synth_frames}")
     name = f"synthetic worlds {cfg.synth_worlds[0]}-{cfg.synth_worlds[-1]} ({cfg.synth_frames} frames)"
     tasks, filtered = [], []
     for w in cfg.synth_worlds:
         out = root / f"world{w}"
-        right = out / "sequences/synth/image_3"
-        if not right.is_dir() or len(list(right.glob("*.png"))) < cfg.synth_frames:
+        if not run_is_complete(out / "sequences/synth"):
             print(f"rendering synthetic world {w} into {out}", flush=True)
-            write_kitti_sequence(make_sequence(SynthConfig(num_frames=cfg.synth_frames, seed=w, stereo=True)), str(out))
+            write_kitti_sequence(make_sequence(SynthConfig(num_frames=cfg.synth_frames, seed=w, stereo=True)), str(out),
+                                 overwrite=True)
         tasks += [Task(name, str(out / "sequences/synth"), mode, cfg.synth_frames, w, base=name)
                   for mode in cfg.synth_modes]
         for method in cfg.filters:

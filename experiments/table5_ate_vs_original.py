@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         print("no ../shared: KITTI seq1 skipped", file=sys.stderr)
     syn = make_sequence(SynthConfig(width=640, height=192, num_frames=a.synth_frames, seed=0))
     sequences[f"synthetic world 0 ({a.synth_frames} frames, 640×192)"] = (
-        write_kitti_sequence(syn, work / "synth", "synth", progress=False), None)
+        write_kitti_sequence(syn, work / "synth", "synth", progress=False, overwrite=True), None)
 
     jobs: dict[tuple[str, str, int], cf.Future] = {}
     with cf.ProcessPoolExecutor(a.jobs, mp_context=mp.get_context("spawn")) as pool:  # JAX does not survive fork
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
             for method in filters:
                 paths[method] = filter_sequence(seq, work / "filtered" / method / name.split(" (")[0].replace(" ", "_"),
                                                 method, masks_source="detect", detector_path=det, progress=False,
-                                                allow_domain_mismatch=True)
+                                                allow_domain_mismatch=True, overwrite=True)
                 print(f"filtered {name} with {method} ({time.time() - t_start:.0f} s)", flush=True)
             for label, path in paths.items():
                 for seed in range(a.seeds):

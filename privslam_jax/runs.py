@@ -1,10 +1,11 @@
 """Run folders: a manifest that says what made a folder and whether it finished.
 
-A command that owns its output folder (``privslam run``, ``slam``, ``detect``) first claims it
-with :func:`claim_run_folder`: the folder must be new or empty, or hold an earlier privslam run
-(``manifest.json``) and come with ``overwrite=True``, which clears it first. Anything else is
-refused, so a rerun never mixes its files with another run's, and ``--overwrite`` never deletes a
-folder privslam did not write. The manifest records the command, its arguments, the versions of
+A command that owns its output folder (``privslam run``, ``slam``, ``detect``; ``filter`` and
+``synth`` own the sequence folder they write, ``DIR/sequences/NAME``, and ``DIR/poses/NAME.txt``
+beside it) first claims it with :func:`claim_run_folder`: the folder must be new or empty, or hold
+an earlier privslam run (``manifest.json``) and come with ``overwrite=True``, which clears it
+first. Anything else is refused, so a rerun never mixes its files with another run's, and
+``--overwrite`` never deletes a folder privslam did not write. The manifest records the command, its arguments, the versions of
 the software and ``"complete": false``; :func:`complete_run_folder` rewrites it with
 ``"complete": true`` after the command succeeded. A folder whose manifest says ``false`` is a run
 that died or failed: its files are not results.
@@ -23,7 +24,7 @@ from typing import Any
 
 from privslam_jax.data.files import write_atomic
 
-__all__ = ["MANIFEST", "claim_run_folder", "complete_run_folder", "read_manifest"]
+__all__ = ["MANIFEST", "claim_run_folder", "complete_run_folder", "read_manifest", "run_is_complete"]
 
 MANIFEST = "manifest.json"
 
@@ -49,17 +50,28 @@ def read_manifest(folder: str | Path) -> dict[str, Any] | None:
         raise ValueError(f"{path} is not a privslam manifest ({err})") from None
 
 
-def claim_run_folder(out: str | Path, command: str, arguments: dict[str, Any], overwrite: bool = False) -> dict[str, Any]:
+def run_is_complete(folder: str | Path) -> bool:
+    """``folder`` holds a privslam run that finished (its manifest says ``"complete": true``)."""
+    manifest = read_manifest(folder)
+    return bool(manifest and manifest.get("complete") is True)
+
+
+def claim_run_folder(out: str | Path, command: str, arguments: dict[str, Any], overwrite: bool = False,
+                     companions: tuple[Path, ...] = ()) -> dict[str, Any]:
     """Make ``out`` this run's folder and write its manifest (``"complete": false``); returns the manifest.
 
+    ``companions``: files outside ``out`` that the run writes too (``filter``/``synth``:
+    ``DIR/poses/NAME.txt``); one that exists is cleared with an earlier run of ``out`` and refused
+    when no earlier run of ``out`` owns it.
+
     Raises ``ValueError`` if ``out`` is a file, holds files of something else, or holds another
-    run and ``overwrite`` is false.
+    run and ``overwrite`` is false, or a companion exists that no earlier run of ``out`` owns.
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file, not a folder")
+    previous = read_manifest(out) if out.is_dir() else None
     if out.is_dir() and any(out.iterdir()):
-        previous = read_manifest(out)
         if previous is None:
             raise ValueError(f"--out {out} is not empty and holds no privslam run ({MANIFEST}); choose a new folder "
                              "(--overwrite only clears folders privslam wrote)")
@@ -67,8 +79,14 @@ def claim_run_folder(out: str | Path, command: str, arguments: dict[str, Any], o
             state = "finished" if previous.get("complete") else "unfinished"
             raise ValueError(f"--out {out} holds an earlier {state} `privslam {previous.get('command', '?')}` run; "
                              "choose a new folder or pass --overwrite to clear it first")
+    for path in companions:
+        if path.exists() and previous is None:
+            raise ValueError(f"{path} already exists and no privslam run in {out} owns it; choose a new --out")
+    if previous is not None:  # an earlier run, and overwrite: clear it
         for child in out.iterdir():
             shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+        for path in companions:
+            path.unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     manifest = {"command": command, "argv": sys.argv[1:], "arguments": arguments, "versions": _versions(),
                 "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "complete": False}

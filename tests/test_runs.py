@@ -56,3 +56,50 @@ def test_cli_rerun_refuses_and_a_failed_run_stays_incomplete(tmp_path, capsys):
     assert main(bad) == 2
     assert json.loads((out / MANIFEST).read_text())["complete"] is False
     assert not (out / "report.json").exists()  # cleared by --overwrite, never rewritten
+
+
+def _frames(folder):
+    return sorted(p.name for p in folder.glob("*.png"))
+
+
+def test_synth_and_filter_own_their_sequence_folder(tmp_path, capsys):
+    """A rerun with other arguments used to mix old and new frames (issue 15 item 7): now refused,
+    and --overwrite clears the sequence folder and its poses file first."""
+    root, filtered = tmp_path / "k", tmp_path / "f"
+    synth = ["synth", "--out", str(root), "--frames", "4", "--width", "64", "--height", "32", "--quiet"]
+    assert main(synth) == 0
+    seq = root / "sequences" / "synth"
+    assert read_manifest(seq)["complete"] is True and read_manifest(seq)["command"] == "synth"
+    assert main(synth[:4] + ["3"] + synth[5:]) == 2  # 3 frames into the 4-frame run
+    assert "--overwrite" in capsys.readouterr().err
+    assert len(_frames(seq / "image_2")) == 4
+    assert main(synth[:4] + ["3"] + synth[5:] + ["--overwrite"]) == 0
+    assert len(_frames(seq / "image_2")) == 3  # no stale fourth frame
+    assert len((root / "poses" / "synth.txt").read_text().splitlines()) == 3
+
+    filt = ["filter", str(seq), "--out", str(filtered), "--method", "gray", "--masks", "gt"]
+    assert main(filt) == 0
+    out = filtered / "sequences" / "synth"
+    assert read_manifest(out)["complete"] is True and read_manifest(out)["arguments"]["method"] == "gray"
+    assert main(filt) == 2
+    (out / "image_2" / "000099.png").write_bytes((out / "image_2" / "000000.png").read_bytes())
+    assert main(filt[:-4] + ["--method", "white", "--masks", "gt", "--overwrite"]) == 0
+    assert _frames(out / "image_2") == _frames(seq / "image_2")  # the stray frame was cleared
+    assert read_manifest(out)["arguments"]["method"] == "white"
+
+
+def test_a_poses_file_no_run_owns_is_refused_and_a_failed_filter_stays_incomplete(tmp_path, capsys):
+    root = tmp_path / "k"
+    (root / "poses").mkdir(parents=True)
+    (root / "poses" / "synth.txt").write_text("mine\n")
+    synth = ["synth", "--out", str(root), "--frames", "3", "--width", "64", "--height", "32", "--quiet"]
+    assert main(synth) == 2 and main(synth + ["--overwrite"]) == 2
+    assert "no privslam run" in capsys.readouterr().err
+    assert (root / "poses" / "synth.txt").read_text() == "mine\n"  # never touched
+    (root / "poses" / "synth.txt").unlink()
+    assert main(synth) == 0
+    seq = root / "sequences" / "synth"
+    (seq / "image_2" / "000001.png").write_bytes(b"not a png")  # fails half-way through the filter
+    assert main(["filter", str(seq), "--out", str(tmp_path / "f"), "--method", "gray", "--masks", "gt"]) == 2
+    assert "000001.png" in capsys.readouterr().err
+    assert read_manifest(tmp_path / "f" / "sequences" / "synth")["complete"] is False

@@ -27,6 +27,10 @@ detector, its domain and the masks per frame.
 ``--method edgeconnect`` uses ``--model`` (an ``Inpainter`` ``.npz`` from ``train/inpaint.py``) or,
 without it, the embedded CPU-preset checkpoint (``privslam_jax/assets/inpainter_cpu16.npz``, see
 ``docs/model_card_inpainter.md``).
+
+The written sequence folder carries ``manifest.json`` (command, arguments, versions) with
+``"complete": true`` only once everything is written; a folder holding an earlier run is refused
+unless ``--overwrite``, which clears it and ``DIR/poses/<name>.txt`` first.
 """
 
 from __future__ import annotations
@@ -65,13 +69,15 @@ def add_parser(subparsers) -> None:
                    help="run a detector trained on the synthetic world only on real frames anyway (it misses most objects)")
     p.add_argument("--dilation", type=int, default=4, help="mask dilation in pixels (default 4)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise baselines")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier filter or synth run in the output sequence folder (cleared first)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     out_dir = filter_sequence(args.sequence, args.out, args.method, args.masks, args.detector, args.model,
                               args.dilation, args.seed, conf=args.conf, propagate=args.propagate, tta=args.tta,
-                              allow_domain_mismatch=args.allow_domain_mismatch)
+                              allow_domain_mismatch=args.allow_domain_mismatch, overwrite=args.overwrite)
     report = json.loads((out_dir / "filter_report.json").read_text())
     det = report.get("detector")
     if det is not None:

@@ -1,6 +1,8 @@
 """``privslam synth``: render a synthetic street sequence and write it in the KITTI odometry layout.
 
-The layout is described in :mod:`privslam_jax.data.kitti_write` (and docs/formats.md).
+The layout is described in :mod:`privslam_jax.data.kitti_write` (and docs/formats.md).  The
+sequence folder carries ``manifest.json``, ``"complete": true`` once everything is written; a
+folder holding an earlier run is refused unless ``--overwrite``, which clears it first.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--stereo", action="store_true", help="also render and write the right camera (image_3)")
     p.add_argument("--name", default="synth", help="sequence name (default 'synth')")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier run in DIR/sequences/NAME (cleared first, with DIR/poses/NAME.txt)")
     p.set_defaults(func=run)
 
 
@@ -45,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
         SynthConfig(width=args.width, height=args.height, num_frames=args.frames, seed=args.seed, stereo=args.stereo)
     )
     records: list[Any] = []
-    seq_dir = write_kitti_sequence(seq, args.out, args.name, progress=not args.quiet, collect=records)
+    seq_dir = write_kitti_sequence(seq, args.out, args.name, progress=not args.quiet, collect=records,
+                                   overwrite=args.overwrite)
     print(summarize_sequence(seq, frames=records, title=f"wrote {seq_dir}"))
     return 0

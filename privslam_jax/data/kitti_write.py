@@ -12,6 +12,7 @@ Written layout (read back by :class:`privslam_jax.data.kitti.KittiSequence`; doc
                        background/%06d.png   the same frame rendered without the privacy objects (RGB)
                        depth_3/, background_3/  the same for the right camera (only with --stereo)
                        labels/%06d.txt       YOLO boxes: class cx cy w h (normalised)
+                       manifest.json         what wrote the folder; "complete": true once all of it is written
     DIR/poses/NAME.txt                       ground truth T_w_c of the left camera, KITTI 3×4 per line
 
 :func:`write_kitti_sequence` works on any object with the :class:`SyntheticSequence` interface
@@ -36,6 +37,7 @@ from privslam_jax.data.images import write_rgb, write_uint16
 from privslam_jax.data.kitti import DEPTH_SCALE
 from privslam_jax.data.trajectory_io import write_kitti_matrices
 from privslam_jax.data.yolo import write_yolo_labels
+from privslam_jax.runs import claim_run_folder, complete_run_folder
 
 __all__ = ["COCO_NAMES", "sequence_stats", "summarize_sequence", "write_kitti_sequence"]
 
@@ -60,13 +62,16 @@ def _depth_png(depth: np.ndarray) -> np.ndarray:
 
 
 def write_kitti_sequence(
-    seq: Any, out: str | Path, name: str = "synth", progress: bool = True, collect: list[Any] | None = None
+    seq: Any, out: str | Path, name: str = "synth", progress: bool = True, collect: list[Any] | None = None,
+    overwrite: bool = False,
 ) -> Path:
     """Render every frame of ``seq`` and write it to ``out`` in the KITTI layout; returns the sequence folder.
 
     ``collect``: a list that receives, per frame, a light record with ``class_ids`` and
     ``instance_of_box`` (for :func:`summarize_sequence` without re-rendering).
-    Existing frame files are overwritten.  The baseline in ``calib.txt`` is the camera's
+    ``DIR/sequences/NAME`` is a run folder (:mod:`privslam_jax.runs`): one that holds an earlier
+    run is refused unless ``overwrite``, which clears it and ``DIR/poses/NAME.txt`` first, and its
+    manifest says ``"complete": true`` only once every file is written.  The baseline in ``calib.txt`` is the camera's
     (``seq.camera.baseline``) or, for a monocular sequence, ``seq.config.baseline`` when present.
     """
     out = Path(out)
@@ -75,7 +80,9 @@ def write_kitti_sequence(
     baseline = cam.baseline
     if baseline is None:
         baseline = getattr(getattr(seq, "config", None), "baseline", 0.54)
-    seq_dir.mkdir(parents=True, exist_ok=True)
+    config = getattr(seq, "config", None)
+    manifest = claim_run_folder(seq_dir, "synth", {"name": name, "frames": len(seq), "config": repr(config)},
+                                overwrite, (out / "poses" / f"{name}.txt",))
     write_atomic(seq_dir / "calib.txt", _calib_text(float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy),
                                                    float(baseline)))
     write_atomic(seq_dir / "instance_classes.json",
@@ -110,6 +117,7 @@ def write_kitti_sequence(
         poses.append(np.asarray(f.T_w_c, np.float64))
     write_atomic(seq_dir / "times.txt", "".join(f"{t:.6e}\n" for t in times))
     write_kitti_matrices(out / "poses" / f"{name}.txt", np.stack(poses))
+    complete_run_folder(seq_dir, manifest)
     return seq_dir
 
 

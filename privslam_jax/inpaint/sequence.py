@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,6 +19,7 @@ from tqdm import tqdm
 
 from privslam_jax.data.files import write_atomic
 from privslam_jax.data.images import write_image_file
+from privslam_jax.runs import claim_run_folder, complete_run_folder
 
 __all__ = ["RECALL_WARNING_BELOW", "check_detector_domain", "filter_sequence"]
 
@@ -120,8 +120,13 @@ def filter_sequence(
     propagate: int = 0,
     tta: bool = False,
     allow_domain_mismatch: bool = False,
+    overwrite: bool = False,
 ) -> Path:
     """Filter every frame of ``sequence`` into ``out``; returns the written sequence folder.
+
+    The sequence folder is a run folder (:mod:`privslam_jax.runs`): its ``manifest.json`` says
+    ``"complete": true`` only after every frame and report is written; a folder holding an earlier
+    run is refused unless ``overwrite``, which clears it (and its ``poses/NAME.txt``) first.
 
     With ``masks_source="detect"`` the detector runs over the whole sequence first (threshold
     ``conf``, default the paper's 0.4; ``tta`` and ``propagate`` as in
@@ -176,6 +181,11 @@ def filter_sequence(
     out_dir = out / "sequences" / seq.name if kitti else out / seq.name
     if out_dir.resolve() == seq.path.resolve():
         raise ValueError("--out must differ from the input sequence's root (it would overwrite the originals)")
+    poses_out = out / "poses" / f"{seq.name}.txt"
+    manifest = claim_run_folder(out_dir, "filter", {
+        "sequence": str(sequence), "method": method, "masks": masks_source, "detector": detector_path,
+        "model": model_path, "dilation": dilation, "seed": seed, "conf": conf, "propagate": propagate, "tta": tta,
+        "allow_domain_mismatch": allow_domain_mismatch}, overwrite, (poses_out,) if kitti else ())
     stems = [p.stem for p in seq.image_paths]
     if kitti:
         grey_input = seq.left_dir.name in ("image_0", "image_1")
@@ -215,10 +225,9 @@ def filter_sequence(
     (out_dir / "masks").mkdir(exist_ok=True)
     for name in ("calib.txt", "times.txt"):
         if (seq.path / name).is_file():
-            shutil.copy2(seq.path / name, out_dir / name)
+            write_atomic(out_dir / name, (seq.path / name).read_bytes())
     if seq.poses_path is not None:
-        (out / "poses").mkdir(parents=True, exist_ok=True)
-        shutil.copy2(seq.poses_path, out / "poses" / f"{seq.name}.txt")
+        write_atomic(poses_out, seq.poses_path.read_bytes())
 
     classes: dict[int, int] = {}
     next_id = 1  # detections get sequence-unique ids
@@ -248,5 +257,6 @@ def filter_sequence(
             if k == 0:
                 write_image_file(out_dir / "masks" / f"{stem}.png", _label_map(masks, ids, (h, w)))
     write_atomic(out_dir / "instance_classes.json", json.dumps({str(k): v for k, v in sorted(classes.items())}))
-    write_atomic(out_dir / "filter_report.json", json.dumps(report, indent=1))  # last: the run finished
+    write_atomic(out_dir / "filter_report.json", json.dumps(report, indent=1))
+    complete_run_folder(out_dir, manifest)  # last: the run finished
     return out_dir
