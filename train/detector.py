@@ -37,45 +37,57 @@ COCO_NAMES_8 = ("person", "bicycle", "car", "motorcycle", "airplane", "bus", "tr
 
 
 def main(argv: list[str] | None = None) -> int:
+    from privslam_jax.commands.argtypes import (multiple_of_32, nonnegative_float, nonnegative_int, open_unit_interval,
+                                                positive_float, positive_int, seed_list, unit_interval)
     from privslam_jax.detect.predict import Detector, DetectorConfig
     from privslam_jax.detect.train import TrainConfig, train
+    from privslam_jax.detect.yolov8 import SCALES
     from privslam_jax.detect.weights import save_checkpoint
     from privslam_jax.metrics.detection import evaluate_yolo_folder
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", required=True, help="YOLO dataset root")
-    p.add_argument("--num-classes", type=int, required=True)
+    p.add_argument("--num-classes", type=positive_int, required=True)
     p.add_argument("--split", default="train")
     p.add_argument("--val-split", default=None)
-    p.add_argument("--scale", default="n")
-    p.add_argument("--imgsz", type=int, default=640)
-    p.add_argument("--batch", type=int, default=16)
-    p.add_argument("--epochs", type=int, default=100)
-    p.add_argument("--lr0", type=float, default=0.01)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scale", choices=sorted(SCALES), default="n")
+    p.add_argument("--imgsz", type=multiple_of_32, default=640)
+    p.add_argument("--batch", type=positive_int, default=16)
+    p.add_argument("--epochs", type=positive_int, default=100)
+    p.add_argument("--lr0", type=positive_float, default=0.01)
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--ckpt-dir", default=None)
-    p.add_argument("--ckpt-every", type=int, default=100)
+    p.add_argument("--ckpt-every", type=positive_int, default=100)
     p.add_argument("--out", type=Path, default=Path("detector.npz"))
-    p.add_argument("--imgh", type=int, default=None, help="rect training canvas height (e.g. 192 with --imgsz 640)")
+    p.add_argument("--imgh", type=multiple_of_32, default=None, help="rect training canvas height (e.g. 192 with --imgsz 640)")
     p.add_argument("--optimizer", choices=("sgd", "adamw"), default="sgd")
-    p.add_argument("--momentum", type=float, default=0.937)
-    p.add_argument("--lrf", type=float, default=0.01)
+    p.add_argument("--momentum", type=open_unit_interval, default=0.937)
+    p.add_argument("--lrf", type=nonnegative_float, default=0.01)
     p.add_argument("--cos-lr", action="store_true")
-    p.add_argument("--warmup-epochs", type=float, default=3.0)
-    p.add_argument("--warmup-bias-lr", type=float, default=0.1, help="bias lr at the start of warmup (use ~lr0 to fine-tune)")
-    p.add_argument("--max-steps", type=int, default=None, help="stop after this many steps (schedule still spans --epochs)")
-    p.add_argument("--domain-rand", type=float, default=0.0, help="probability of photometric domain randomisation per image")
+    p.add_argument("--warmup-epochs", type=nonnegative_float, default=3.0)
+    p.add_argument("--warmup-bias-lr", type=nonnegative_float, default=0.1,
+                   help="bias lr at the start of warmup (use ~lr0 to fine-tune)")
+    p.add_argument("--max-steps", type=nonnegative_int, default=None,
+                   help="stop after this many steps (schedule still spans --epochs)")
+    p.add_argument("--domain-rand", type=unit_interval, default=0.0,
+                   help="probability of photometric domain randomisation per image")
     p.add_argument("--init-weights", default=None, help="fine-tune from this .npz checkpoint (same scale and classes)")
     p.add_argument("--synth-randomize-camera", action="store_true",
                    help="per seed random camera height, focal length and object density in the synthetic export")
     p.add_argument("--domain", choices=("synthetic", "real", "unknown"), default="unknown",
                    help="what the training data was, recorded in the checkpoint (real: any real frames in it)")
     p.add_argument("--coco-names", action="store_true", help="store COCO class names in the checkpoint")
-    p.add_argument("--synth-train-seeds", default=None, help="A-B: export synthetic seeds A..B as the train split first")
-    p.add_argument("--synth-val-seeds", default=None, help="C-D: export synthetic seeds C..D as the val split first")
-    p.add_argument("--synth-frames", type=int, default=16, help="frames per synthetic seed")
-    p.add_argument("--synth-stride", type=int, default=12, help="frame stride within a synthetic seed")
+    p.add_argument("--synth-train-seeds", type=seed_list, default=None,
+                   help="A-B: export synthetic seeds A..B as the train split first")
+    p.add_argument("--synth-val-seeds", type=seed_list, default=None,
+                   help="C-D: export synthetic seeds C..D as the val split first")
+    p.add_argument("--synth-frames", type=positive_int, default=16, help="frames per synthetic seed")
+    p.add_argument("--synth-stride", type=positive_int, default=12, help="frame stride within a synthetic seed")
     a = p.parse_args(argv)
+    if a.imgh is not None and a.imgh > a.imgsz:
+        p.error(f"argument --imgh: must be at most --imgsz ({a.imgsz}), got {a.imgh}")
+    if a.coco_names and a.num_classes > len(COCO_NAMES_8):
+        p.error(f"argument --coco-names: knows the first {len(COCO_NAMES_8)} COCO names, got --num-classes {a.num_classes}")
     for split, seeds in (("train", a.synth_train_seeds), ("val", a.synth_val_seeds)):
         if seeds and not (Path(a.data) / "images" / split).is_dir():
             from privslam_jax.data.yolo import export_synthetic_yolo
@@ -91,11 +103,7 @@ def main(argv: list[str] | None = None) -> int:
                       ckpt_every=a.ckpt_every, max_steps=a.max_steps,
                       domain_rand=a.domain_rand, init_weights=a.init_weights)
     result = train(cfg)
-    names = None
-    if a.coco_names:
-        if a.num_classes > len(COCO_NAMES_8):
-            raise ValueError(f"--coco-names knows the first {len(COCO_NAMES_8)} COCO names, got {a.num_classes} classes")
-        names = {i: COCO_NAMES_8[i] for i in range(a.num_classes)}
+    names = {i: COCO_NAMES_8[i] for i in range(a.num_classes)} if a.coco_names else None
     save_checkpoint(result.model, a.out, names, domain=a.domain)
     print(f"wrote {a.out} after {result.step} steps")
     if a.val_split:

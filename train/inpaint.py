@@ -38,9 +38,12 @@ configure_xla()
 
 
 def main(argv: list[str] | None = None) -> int:
+    from privslam_jax.commands.argtypes import (nonnegative_float, nonnegative_int, open_unit_interval, positive_float,
+                                                positive_int, seed_list, unit_interval)
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--synth-frames", type=int, help="render this many synthetic frames")
+    src.add_argument("--synth-frames", type=positive_int, help="render this many synthetic frames")
     src.add_argument("--sequence", type=Path, help="sequence folder written by `privslam synth`")
     src.add_argument("--folder", type=Path, help="folder of images (random masks)")
     src.add_argument("--bank", type=Path, help="a crop bank .npz saved by an earlier run")
@@ -48,57 +51,76 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--shapes", type=Path, help="folder of binary object masks (255 = object) for --real")
     p.add_argument("--shape-files", help="use only these mask files, as a slice A:B of the sorted list "
                    "(keep the rest for evaluation)")
-    p.add_argument("--real-weight", type=float, default=0.7, help="share of real samples when mixed")
+    p.add_argument("--real-weight", type=unit_interval, default=0.7, help="share of real samples when mixed")
     p.add_argument("--init", type=Path, help="fine-tune from this Inpainter .npz")
     p.add_argument("--prefill", default="white", help="what G2 sees in the hole: white (official), telea, ns, gray")
     p.add_argument("--residual", action="store_true", help="G2 predicts a correction of the prefill")
     p.add_argument("--hole-loss", default="l1", choices=("l1", "l1_hole", "l2_hole"),
                    help="G2's reconstruction loss: l1 (official, whole crop), or inside the hole only")
-    p.add_argument("--synth-seed", type=int, default=0)
-    p.add_argument("--synth-seeds", help="several worlds: comma list or range A-B (overrides --synth-seed); "
+    p.add_argument("--synth-seed", type=nonnegative_int, default=0)
+    p.add_argument("--synth-seeds", type=seed_list, help="several worlds: comma list or range A-B (overrides --synth-seed); "
                    "--synth-frames frames of each")
-    p.add_argument("--frame-stride", type=int, default=1)
+    p.add_argument("--frame-stride", type=positive_int, default=1)
     p.add_argument("--workdir", type=Path, required=True)
     p.add_argument("--export", type=Path, help="write the trained Inpainter .npz here")
-    p.add_argument("--width", type=int, default=16)
-    p.add_argument("--blocks", type=int, default=8)
-    p.add_argument("--size", type=int, default=64)
-    p.add_argument("--batch", type=int, default=8)
+    p.add_argument("--width", type=positive_int, default=16)
+    p.add_argument("--blocks", type=positive_int, default=8)
+    p.add_argument("--size", type=positive_int, default=64, help="training crop size, multiple of 4")
+    p.add_argument("--batch", type=positive_int, default=8)
     p.add_argument("--steps", default="2000,2000,1000", help="edge,inpaint,joint steps")
     p.add_argument("--stages", help="explicit schedule, e.g. edge:1500,edge_inpaint:5000 (overrides --steps; "
                    "edge_inpaint = official MODEL 3: G2 trained on the frozen edge model's output)")
-    p.add_argument("--seed", type=int, default=0, help="model and data seed")
-    p.add_argument("--checkpoint-every", type=int, default=500)
-    p.add_argument("--sample-every", type=int, default=500)
-    p.add_argument("--max-steps", type=int, default=None)
-    p.add_argument("--lr", type=float, default=1e-4, help="generator Adam lr (official 1e-4)")
-    p.add_argument("--inpaint-lr", type=float, default=None, help="G2's own lr (default: --lr)")
-    p.add_argument("--inpaint-beta1", type=float, default=None, help="G2's own Adam beta1 (default 0)")
-    p.add_argument("--inpaint-lr-final", type=float, default=None,
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="model and data seed")
+    p.add_argument("--checkpoint-every", type=positive_int, default=500)
+    p.add_argument("--sample-every", type=nonnegative_int, default=500, help="0: never")
+    p.add_argument("--max-steps", type=nonnegative_int, default=None)
+    p.add_argument("--lr", type=positive_float, default=1e-4, help="generator Adam lr (official 1e-4)")
+    p.add_argument("--inpaint-lr", type=positive_float, default=None, help="G2's own lr (default: --lr)")
+    p.add_argument("--inpaint-beta1", type=open_unit_interval, default=None, help="G2's own Adam beta1 (default 0)")
+    p.add_argument("--inpaint-lr-final", type=nonnegative_float, default=None,
                    help="cosine-decay G2's lr to this over its updates (default: constant)")
-    p.add_argument("--inpaint-adv-weight", type=float, default=0.1,
+    p.add_argument("--inpaint-adv-weight", type=nonnegative_float, default=0.1,
                    help="adversarial weight of G2 (official 0.1; 0 = L1 only, D2 skipped)")
     a = p.parse_args(argv)
     if a.real and a.shapes is None:
         p.error("--real needs --shapes")
     if not a.real and all(x is None for x in (a.synth_frames, a.sequence, a.folder, a.bank)):
         p.error("give a data source: --synth-frames, --sequence, --folder, --bank and/or --real")
+    if a.size % 4:
+        p.error(f"argument --size: must be a multiple of 4, got {a.size}")
+    shape_slice = slice(None)
+    if a.shape_files is not None:
+        lo, colon, hi = a.shape_files.partition(":")
+        try:
+            shape_slice = slice(int(lo) if lo else None, int(hi) if hi else None)
+        except ValueError:
+            colon = ""
+        if not colon:
+            p.error(f"argument --shape-files: must be a slice A:B of the sorted mask files, got {a.shape_files!r}")
 
     from tqdm import tqdm
 
     from privslam_jax.inpaint.data import CropBank, FolderData, Mixture, RealHoleData, image_paths, object_shapes
-    from privslam_jax.inpaint.filter import Inpainter
-    from privslam_jax.inpaint.train import TrainConfig, train
+    from privslam_jax.inpaint.filter import PREFILLS, Inpainter
+    from privslam_jax.inpaint.train import STAGES, TrainConfig, train
 
+    if a.prefill not in PREFILLS:
+        p.error(f"argument --prefill: invalid choice: {a.prefill!r} (choose from {', '.join(PREFILLS)})")
     if a.stages:
         try:
-            stages = tuple((n, int(k)) for n, k in (x.split(":") for x in a.stages.split(",")))
-        except ValueError:
-            p.error("--stages needs name:steps pairs, e.g. edge:1500,edge_inpaint:5000")
+            stages = tuple((n, nonnegative_int(k)) for n, k in (x.split(":") for x in a.stages.split(",")))
+        except (ValueError, argparse.ArgumentTypeError):
+            p.error("argument --stages: needs name:steps pairs with steps >= 0, e.g. edge:1500,edge_inpaint:5000")
+        for name, _ in stages:
+            if name not in STAGES:
+                p.error(f"argument --stages: unknown stage {name!r} (choose from {', '.join(STAGES)})")
     else:
-        steps = [int(s) for s in a.steps.split(",")]
+        try:
+            steps = [nonnegative_int(s) for s in a.steps.split(",")]
+        except argparse.ArgumentTypeError:
+            steps = []
         if len(steps) != 3:
-            p.error("--steps needs three comma-separated numbers: edge,inpaint,joint")
+            p.error(f"argument --steps: needs three comma-separated numbers >= 0 (edge,inpaint,joint), got {a.steps!r}")
         stages = tuple(zip(("edge", "inpaint", "joint"), steps, strict=True))
     cfg = TrainConfig(width=a.width, num_residual_blocks=a.blocks, size=a.size, batch_size=a.batch,
                       stages=stages, seed=a.seed,
@@ -129,10 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         data.save(bank_path)
         print(f"{len(data)} object crops saved to {bank_path}")
     if a.real:
-        masks = image_paths(a.shapes)
-        if a.shape_files:
-            lo, hi = (int(x) if x else None for x in a.shape_files.split(":"))
-            masks = masks[lo:hi]
+        masks = image_paths(a.shapes)[shape_slice]
         real = RealHoleData(image_paths(*a.real), object_shapes(masks), a.size, seed=a.seed)
         print(f"real frames: {len(real.paths)}, object shapes: {len(real.shapes)} from {len(masks)} mask files")
         data = real if data is None else Mixture([real, data], [a.real_weight, 1 - a.real_weight], seed=a.seed)

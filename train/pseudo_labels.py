@@ -41,6 +41,7 @@ def runs_of(folder: Path) -> list[list[Path]]:
 
 def main(argv: list[str] | None = None) -> int:
     from privslam_jax._shared import shared_dir
+    from privslam_jax.commands.argtypes import positive_int, unit_interval
     from privslam_jax.data.yolo import link_mixed_split
     from privslam_jax.detect import PRIVACY_CLASSES, Detector, DetectorConfig
     from privslam_jax.detect.pseudo import PseudoLabelConfig, export_pseudo_yolo
@@ -49,8 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--weights", required=True, help="the detector that labels (our .npz; never third-party weights)")
     p.add_argument("--synthetic", type=Path, required=True, help="synthetic YOLO split to mix in: ROOT/SPLIT")
     p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--repeat", type=int, default=4, help="links per real frame in the mix split")
-    p.add_argument("--label-conf", type=float, default=0.5)
+    p.add_argument("--repeat", type=positive_int, default=4, help="links per real frame in the mix split")
+    p.add_argument("--label-conf", type=unit_interval, default=0.5)
     a = p.parse_args(argv)
     shared = shared_dir()
     if shared is None:

@@ -32,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     import cv2
 
     from privslam_jax._shared import shared_dir
+    from privslam_jax.commands.argtypes import nonnegative_int, positive_int
     from privslam_jax.data.images import read_rgb8, write_image_file
     from privslam_jax.data.yolo import link_mixed_split, write_yolo_labels
     from privslam_jax.detect.temporal import box_flow, dense_flow, flow_grey
@@ -39,8 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--synthetic", type=Path, required=True, help="synthetic YOLO split to mix in: ROOT/SPLIT")
     p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--window", type=int, default=3, help="frames before and after each keyframe that get its boxes")
-    p.add_argument("--repeat", type=int, default=3, help="links per real frame in the mix split")
+    p.add_argument("--window", type=nonnegative_int, default=3, help="frames before and after each keyframe that get its boxes")
+    p.add_argument("--repeat", type=positive_int, default=3, help="links per real frame in the mix split")
     p.add_argument("--boxes", type=Path, default=ROOT / "train" / "data" / "real_boxes.json")
     a = p.parse_args(argv)
     shared = shared_dir()

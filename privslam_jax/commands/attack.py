@@ -11,6 +11,8 @@ import argparse
 import time
 from pathlib import Path
 
+from privslam_jax.commands.argtypes import nonnegative_int
+
 __all__ = ["add_parser", "run"]
 
 
@@ -20,7 +22,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("lines", type=Path, help="input line cloud, PLY (edges or vertex pairs)")
     p.add_argument("--out", type=Path, required=True, help="output recovered point cloud, PLY")
     p.add_argument("--method", choices=("line2point", "gradient"), default="line2point", help="attack (default line2point)")
-    p.add_argument("--refine", type=int, default=2, help="Line2Point refinement rounds (default 2; authors: 2 or 3)")
+    p.add_argument("--refine", type=nonnegative_int, default=2, help="Line2Point refinement rounds (default 2; authors: 2 or 3)")
     p.add_argument("--x64", action="store_true", help="compute in float64")
     p.add_argument("--ascii", action="store_true", help="write ASCII PLY")
     p.set_defaults(func=run)
@@ -35,8 +37,6 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.data.ply import load_line_cloud, save_point_cloud
     from privslam_jax.types import PointCloud
 
-    if args.refine < 0:
-        raise ValueError(f"--refine must be >= 0, got {args.refine}")
     t0 = time.perf_counter()
     with jax.enable_x64(args.x64):
         lines = load_line_cloud(args.lines)

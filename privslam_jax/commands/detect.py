@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from privslam_jax.commands.argtypes import multiple_of_32, unit_interval
+
 __all__ = ["add_parser", "run", "list_images", "EMBEDDED_WEIGHTS", "EMBEDDED_REAL_WEIGHTS"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -45,9 +47,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--embedded", choices=("real", "synthetic"), default="real",
                    help="which embedded detector without --weights: for real photographs (default) or for "
                         "privslam synth frames")
-    p.add_argument("--conf", type=float, default=None, help="confidence threshold (default 0.25; 0.4 with --classes privacy)")
-    p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default 0.7)")
-    p.add_argument("--imgsz", type=int, default=640, help="letterbox size, multiple of 32 (default 640)")
+    p.add_argument("--conf", type=unit_interval, default=None,
+                   help="confidence threshold (default 0.25; 0.4 with --classes privacy)")
+    p.add_argument("--iou", type=unit_interval, default=0.7, help="NMS IoU threshold (default 0.7)")
+    p.add_argument("--imgsz", type=multiple_of_32, default=640, help="letterbox size, multiple of 32 (default 640)")
     p.add_argument("--classes", choices=("privacy", "all"), default="all", help="class filter (default all)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true",

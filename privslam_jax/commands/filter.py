@@ -39,6 +39,7 @@ import argparse
 import json
 from pathlib import Path
 
+from privslam_jax.commands.argtypes import nonnegative_int, unit_interval
 from privslam_jax.inpaint.sequence import filter_sequence
 
 __all__ = ["add_parser", "run"]
@@ -59,16 +60,16 @@ def add_parser(subparsers) -> None:
     p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz; default: the embedded detector for the frames' domain)")
     p.add_argument("--model", type=Path, default=None,
                    help="EdgeConnect Inpainter .npz (for edgeconnect; default: the embedded checkpoint)")
-    p.add_argument("--conf", type=float, default=None,
+    p.add_argument("--conf", type=unit_interval, default=None,
                    help="detection threshold (default 0.4, the paper's; lower it for recall, see docs/detector.md)")
-    p.add_argument("--propagate", type=int, default=0, metavar="K",
+    p.add_argument("--propagate", type=nonnegative_int, default=0, metavar="K",
                    help="carry each detection to the K frames before and after it by optical flow, where the "
                         "detector missed the object (recall-first; docs/detector.md)")
     p.add_argument("--tta", action="store_true", help="test-time augmentation: letterbox 640 and 960, each also flipped")
     p.add_argument("--allow-domain-mismatch", action="store_true",
                    help="run a detector trained on the synthetic world only on real frames anyway (it misses most objects)")
-    p.add_argument("--dilation", type=int, default=4, help="mask dilation in pixels (default 4)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the noise baselines")
+    p.add_argument("--dilation", type=nonnegative_int, default=4, help="mask dilation in pixels (default 4)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the noise baselines")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an earlier filter or synth run in the output sequence folder (cleared first)")
     p.set_defaults(func=run)

@@ -6,10 +6,13 @@ import argparse
 import json
 from pathlib import Path
 
+from privslam_jax.commands.argtypes import nonnegative_int, positive_int, unit_interval
+
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    from privslam_jax.inpaint.filter import FILTER_METHODS
     from privslam_jax.pipeline import PipelineConfig
 
     d = PipelineConfig()
@@ -26,17 +29,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="a KITTI-layout sequence folder (…/sequences/<id> with calib.txt; ground truth from "
                         "…/poses/<id>.txt when present). Default: render the embedded synthetic sequence")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder")
-    p.add_argument("--frames", type=int, default=d.frames, help=f"number of synthetic frames (default {d.frames})")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"synthetic world seed (default {d.seed})")
-    p.add_argument("--filter", default=d.filter_method, dest="filter_method",
+    p.add_argument("--frames", type=positive_int, default=d.frames, help=f"number of synthetic frames (default {d.frames})")
+    p.add_argument("--seed", type=nonnegative_int, default=d.seed, help=f"synthetic world seed (default {d.seed})")
+    p.add_argument("--filter", default=d.filter_method, dest="filter_method", choices=FILTER_METHODS, metavar="METHOD",
                    help=f"privacy filter method (any of `privslam filter --method`; default {d.filter_method})")
     p.add_argument("--masks", choices=("detect", "gt"), default=d.masks,
                    help=f"filter masks from the detector or the renderer's ground truth (default {d.masks})")
     p.add_argument("--detector", default=None, metavar="PATH",
                    help="detector weights (default: the embedded detector made for the frames' domain)")
-    p.add_argument("--conf", type=float, default=None, help="detection threshold (default 0.4)")
+    p.add_argument("--conf", type=unit_interval, default=None, help="detection threshold (default 0.4)")
     p.add_argument("--tta", action="store_true", help="detector test-time augmentation (recall-first)")
-    p.add_argument("--propagate", type=int, default=0, metavar="K",
+    p.add_argument("--propagate", type=nonnegative_int, default=0, metavar="K",
                    help="carry detections to the K frames before and after by optical flow (recall-first)")
     p.add_argument("--inpainter", default=None, metavar="PATH",
                    help="EdgeConnect checkpoint for --filter edgeconnect (default: the embedded inpainter)")

@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+from privslam_jax.commands.argtypes import nonnegative_int, positive_int
 from privslam_jax.slam.outputs import (
     load_sequence_frames,
     masked_regions,
@@ -38,8 +39,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("sequence", help="KITTI-layout sequence folder …/sequences/<id>")
     p.add_argument("--mode", choices=("mono", "stereo", "rgbd"), default="mono", help="input mode (default mono)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--seed", type=int, default=0, help="RANSAC shuffling seed (default 0)")
-    p.add_argument("--max-frames", type=int, default=None, help="process only the first N frames")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="RANSAC shuffling seed (default 0)")
+    p.add_argument("--max-frames", type=positive_int, default=None, help="process only the first N frames")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--ignore-masked", action="store_true",
                    help="extract no features where the sequence's masks/ is nonzero (on a `privslam filter` "

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from privslam_jax.commands.argtypes import nonnegative_int
 from privslam_jax.data.kitti_write import summarize_sequence, write_kitti_sequence
 
 __all__ = ["add_parser", "run"]
@@ -25,7 +26,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output root (KITTI layout)")
     p.add_argument("--frames", type=int, default=100, help="number of frames (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="world seed (default 0)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="world seed (default 0)")
     p.add_argument("--width", type=int, default=640, help="image width in px (default 640)")
     p.add_argument("--height", type=int, default=192, help="image height in px (default 192)")
     p.add_argument("--stereo", action="store_true", help="also render and write the right camera (image_3)")

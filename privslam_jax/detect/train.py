@@ -117,8 +117,12 @@ class TrainConfig:
     """Stop after this many total steps (e.g. to simulate a kill); ``None``: all epochs."""
 
     def __post_init__(self) -> None:
-        if self.imgsz % 32 or (self.imgh is not None and (self.imgh % 32 or not 0 < self.imgh <= self.imgsz)):
-            raise ValueError(f"imgsz and imgh must be multiples of 32 with imgh <= imgsz, got {self.imgsz}, {self.imgh}")
+        bad_h = self.imgh is not None and (self.imgh % 32 or not 0 < self.imgh <= self.imgsz)
+        if self.imgsz <= 0 or self.imgsz % 32 or bad_h:
+            raise ValueError(f"imgsz and imgh must be positive multiples of 32 with imgh <= imgsz, got {self.imgsz}, {self.imgh}")
+        for name in ("num_classes", "batch_size", "epochs", "ckpt_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.optimizer not in ("sgd", "adamw"):
             raise ValueError(f"optimizer must be 'sgd' or 'adamw', got {self.optimizer!r}")
 

@@ -125,6 +125,11 @@ class TrainConfig:
                 raise ValueError(f"bad stage {(stage, steps)}; stages are {STAGES} with steps >= 0")
         if self.size % 4:
             raise ValueError(f"size must be a multiple of 4, got {self.size}")
+        for name in ("width", "num_residual_blocks", "size", "batch_size", "checkpoint_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.sample_every < 0:
+            raise ValueError(f"sample_every must be >= 0, got {self.sample_every}")
         if self.hole_loss not in ("l1", "l1_hole", "l2_hole"):
             raise ValueError(f"hole_loss must be l1, l1_hole or l2_hole, got {self.hole_loss!r}")
         if self.prefill not in PREFILLS:
@@ -387,7 +392,9 @@ def train(
     if mngr.latest_step() is not None:
         start = int(mngr.latest_step())
         restored = mngr.restore(start, args=ocp.args.StandardRestore(trainer.state_dict()))
-        trainer.load_state_dict(restored)
+        # orbax returns arrays committed to the device, fresh ones are not: uncommitted copies keep
+        # the jitted steps' cache (in memory and on disk) valid instead of compiling all four anew
+        trainer.load_state_dict(jax.tree.map(lambda x: jnp.array(np.asarray(x)), restored))
     elif init is not None:
         if (init.config.width, init.config.num_residual_blocks) != (config.width, config.num_residual_blocks):
             raise ValueError(f"init inpainter has width {init.config.width}, {init.config.num_residual_blocks} blocks; "

@@ -1,0 +1,221 @@
+"""Bad option values are refused by every ``privslam`` subcommand and every ``train/`` script (issue 22 item 4).
+
+Each case calls the real ``main(argv)`` and expects exit status 2 (argparse's ``SystemExit(2)``, or
+the ``privslam`` error path that turns a ValueError/OSError into status 2 and one stderr line) with
+an error message naming the option. Input files point to paths that do not exist: a value that
+slipped through validation would fail on the missing input instead, with a message that does not
+name the option. Commands that own their ``--out`` folder must refuse before claiming it.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+from privslam_jax.cli import main as privslam_main
+
+REPO = Path(__file__).resolve().parents[1]
+MISSING = "/nonexistent/privslam-test-input"
+"""An input path that does not exist."""
+
+
+def _exit_code(main, argv: list[str]) -> int | str | None:
+    try:
+        return main(argv)
+    except SystemExit as stop:
+        return stop.code
+
+
+def _check(main, argv: list[str], option: str, capsys) -> None:
+    code = _exit_code(main, argv)
+    err = capsys.readouterr().err.strip()
+    assert code == 2, f"exit {code!r} for {argv}; stderr: {err[-500:]}"
+    last = err.splitlines()[-1] if err else ""
+    assert re.search(r"error: .*" + re.escape(option) + r"(?![\w-])", last), f"{option} not named in: {last!r}"
+
+
+
+OWN_OUT = {"run", "detect", "slam"}
+"""Subcommands that claim ``--out`` (manifest.json) before they run."""
+
+PRIVSLAM_CASES = [
+    # run: the main job
+    (["run", "--mode", "bogus"], "--mode"),
+    (["run", "--masks", "bogus"], "--masks"),
+    (["run", "--filter", "bogus"], "--filter"),
+    (["run", "--frames", "0"], "--frames"),
+    (["run", "--frames", "-5"], "--frames"),
+    (["run", "--frames", "2.5"], "--frames"),
+    (["run", "--seed", "-1"], "--seed"),
+    (["run", "--conf", "nan"], "--conf"),
+    (["run", "--conf", "1.5"], "--conf"),
+    (["run", "--conf", "-0.1"], "--conf"),
+    (["run", "--propagate", "-1"], "--propagate"),
+    (["run", MISSING, "--mode", "rgbd"], "--mode"),
+    # synth
+    (["synth", "--frames", "0"], "--frames"),
+    (["synth", "--frames", "x"], "--frames"),
+    (["synth", "--width", "8"], "--width"),
+    (["synth", "--height", "-1"], "--height"),
+    (["synth", "--name", "a/b"], "--name"),
+    (["synth", "--seed", "-1", "--frames", "1"], "--seed"),
+    # detect
+    (["detect", MISSING, "--embedded", "bogus"], "--embedded"),
+    (["detect", MISSING, "--classes", "bogus"], "--classes"),
+    (["detect", MISSING, "--conf", "1.5"], "--conf"),
+    (["detect", MISSING, "--conf", "nan"], "--conf"),
+    (["detect", MISSING, "--iou", "-0.1"], "--iou"),
+    (["detect", MISSING, "--imgsz", "0"], "--imgsz"),
+    (["detect", MISSING, "--imgsz", "-32"], "--imgsz"),
+    (["detect", MISSING, "--imgsz", "100"], "--imgsz"),
+    # lift, attack, eval-points
+    (["lift", MISSING, "--method", "bogus"], "--method"),
+    (["lift", MISSING, "--seed", "1.5"], "--seed"),
+    (["attack", MISSING, "--method", "bogus"], "--method"),
+    (["attack", MISSING, "--refine", "-1"], "--refine"),
+    (["eval-points", MISSING, MISSING, "--method", "bogus"], "--method"),
+    # filter
+    (["filter", MISSING, "--method", "bogus"], "--method"),
+    (["filter", MISSING, "--masks", "bogus"], "--masks"),
+    (["filter", MISSING, "--conf", "1.5"], "--conf"),
+    (["filter", MISSING, "--conf", "nan"], "--conf"),
+    (["filter", MISSING, "--propagate", "-1"], "--propagate"),
+    (["filter", MISSING, "--dilation", "-1"], "--dilation"),
+    (["filter", MISSING, "--seed", "-1"], "--seed"),
+    # slam
+    (["slam", MISSING, "--mode", "bogus"], "--mode"),
+    (["slam", MISSING, "--seed", "-1"], "--seed"),
+    (["slam", MISSING, "--max-frames", "0"], "--max-frames"),
+    (["slam", MISSING, "--max-frames", "-2"], "--max-frames"),
+]
+
+
+def _id(case) -> str:
+    argv = case.values[0] if hasattr(case, "values") else case[0]
+    return " ".join(a if a != MISSING else "MISSING" for a in argv)
+
+
+@pytest.mark.parametrize(("argv", "option"), PRIVSLAM_CASES, ids=[_id(c) for c in PRIVSLAM_CASES])
+def test_privslam_refuses_bad_option_value(argv, option, tmp_path, capsys):
+    out = tmp_path / "out"
+    _check(privslam_main, argv if argv[0] == "eval-points" else [*argv, "--out", str(out)], option, capsys)
+    if argv[0] in OWN_OUT or argv[0] == "synth":
+        assert not out.exists(), "the output folder was claimed before the options were checked"
+
+
+def test_every_subcommand_is_covered():
+    from privslam_jax.cli import _COMMANDS
+
+    covered = {(c.values[0] if hasattr(c, "values") else c[0])[0] for c in PRIVSLAM_CASES}
+    assert covered == {name.replace("_", "-") for name in _COMMANDS}
+
+
+def test_eval_points_names_the_missing_lines_file(tmp_path, capsys):
+    """eval-points has no numeric option: a --lines file that does not exist is named on the one error line."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from privslam_jax.data.ply import save_point_cloud
+    from privslam_jax.types import PointCloud
+
+    pts = tmp_path / "points.ply"
+    save_point_cloud(pts, PointCloud(xyz=jnp.asarray(np.random.default_rng(0).normal(size=(5, 3)))))
+    lines = tmp_path / "no_lines.ply"
+    assert _exit_code(privslam_main, ["eval-points", str(pts), str(pts), "--lines", str(lines)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("privslam eval-points: error:") and str(lines) in err[0]
+
+
+# ---------------------------------------------------------------- train/ scripts
+
+def _load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(f"_train_{name}", REPO / "train" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+DETECTOR = ["--data", MISSING, "--num-classes", "2"]
+INPAINT = ["--folder", MISSING, "--workdir", MISSING]
+LABELS = ["--synthetic", MISSING, "--out", MISSING]
+
+TRAIN_CASES = [
+    ("detector", [*DETECTOR, "--optimizer", "bogus"], "--optimizer"),
+    ("detector", [*DETECTOR, "--scale", "bogus"], "--scale"),
+    ("detector", [*DETECTOR, "--domain", "bogus"], "--domain"),
+    ("detector", ["--data", MISSING, "--num-classes", "0"], "--num-classes"),
+    ("detector", [*DETECTOR, "--imgsz", "0"], "--imgsz"),
+    ("detector", [*DETECTOR, "--imgsz", "33"], "--imgsz"),
+    ("detector", [*DETECTOR, "--imgh", "200"], "--imgh"),
+    ("detector", [*DETECTOR, "--imgsz", "320", "--imgh", "352"], "--imgh"),
+    ("detector", [*DETECTOR, "--batch", "0"], "--batch"),
+    ("detector", [*DETECTOR, "--batch", "-4"], "--batch"),
+    ("detector", [*DETECTOR, "--epochs", "0"], "--epochs"),
+    ("detector", [*DETECTOR, "--lr0", "nan"], "--lr0"),
+    ("detector", [*DETECTOR, "--lr0", "-0.01"], "--lr0"),
+    ("detector", [*DETECTOR, "--lrf", "-1"], "--lrf"),
+    ("detector", [*DETECTOR, "--momentum", "1.5"], "--momentum"),
+    ("detector", [*DETECTOR, "--ckpt-every", "0"], "--ckpt-every"),
+    ("detector", [*DETECTOR, "--warmup-epochs", "-1"], "--warmup-epochs"),
+    ("detector", [*DETECTOR, "--warmup-bias-lr", "inf"], "--warmup-bias-lr"),
+    ("detector", [*DETECTOR, "--max-steps", "-1"], "--max-steps"),
+    ("detector", [*DETECTOR, "--domain-rand", "2"], "--domain-rand"),
+    ("detector", [*DETECTOR, "--seed", "-1"], "--seed"),
+    ("detector", [*DETECTOR, "--synth-frames", "0"], "--synth-frames"),
+    ("detector", [*DETECTOR, "--synth-stride", "0"], "--synth-stride"),
+    ("detector", [*DETECTOR, "--synth-train-seeds", "5-2"], "--synth-train-seeds"),
+    ("detector", [*DETECTOR, "--synth-val-seeds", "a-b"], "--synth-val-seeds"),
+    ("detector", ["--data", MISSING, "--num-classes", "9", "--coco-names"], "--coco-names"),
+    ("inpaint", [*INPAINT, "--hole-loss", "bogus"], "--hole-loss"),
+    ("inpaint", [*INPAINT, "--prefill", "bogus"], "--prefill"),
+    ("inpaint", [*INPAINT, "--width", "0"], "--width"),
+    ("inpaint", [*INPAINT, "--blocks", "-1"], "--blocks"),
+    ("inpaint", [*INPAINT, "--size", "30"], "--size"),
+    ("inpaint", [*INPAINT, "--size", "0"], "--size"),
+    ("inpaint", [*INPAINT, "--batch", "0"], "--batch"),
+    ("inpaint", [*INPAINT, "--checkpoint-every", "0"], "--checkpoint-every"),
+    ("inpaint", [*INPAINT, "--sample-every", "-1"], "--sample-every"),
+    ("inpaint", [*INPAINT, "--max-steps", "-1"], "--max-steps"),
+    ("inpaint", [*INPAINT, "--lr", "nan"], "--lr"),
+    ("inpaint", [*INPAINT, "--lr", "0"], "--lr"),
+    ("inpaint", [*INPAINT, "--inpaint-lr", "-1e-4"], "--inpaint-lr"),
+    ("inpaint", [*INPAINT, "--inpaint-beta1", "1"], "--inpaint-beta1"),
+    ("inpaint", [*INPAINT, "--inpaint-lr-final", "-1"], "--inpaint-lr-final"),
+    ("inpaint", [*INPAINT, "--inpaint-adv-weight", "-0.1"], "--inpaint-adv-weight"),
+    ("inpaint", [*INPAINT, "--real-weight", "1.5"], "--real-weight"),
+    ("inpaint", [*INPAINT, "--seed", "-1"], "--seed"),
+    ("inpaint", [*INPAINT, "--frame-stride", "0"], "--frame-stride"),
+    ("inpaint", ["--synth-frames", "0", "--workdir", MISSING], "--synth-frames"),
+    ("inpaint", ["--synth-frames", "2", "--synth-seeds", "5-2", "--workdir", MISSING], "--synth-seeds"),
+    ("inpaint", [*INPAINT, "--steps", "1,2"], "--steps"),
+    ("inpaint", [*INPAINT, "--steps", "1,-2,3"], "--steps"),
+    ("inpaint", [*INPAINT, "--steps", "a,b,c"], "--steps"),
+    ("inpaint", [*INPAINT, "--stages", "warmup:3"], "--stages"),
+    ("inpaint", [*INPAINT, "--stages", "edge"], "--stages"),
+    ("inpaint", [*INPAINT, "--stages", "edge:-1"], "--stages"),
+    ("inpaint", ["--real", MISSING, "--shapes", MISSING, "--shape-files", "5", "--workdir", MISSING], "--shape-files"),
+    ("pseudo_labels", ["--weights", "w.npz", *LABELS, "--repeat", "0"], "--repeat"),
+    ("pseudo_labels", ["--weights", "w.npz", *LABELS, "--label-conf", "1.5"], "--label-conf"),
+    ("real_labels", [*LABELS, "--window", "-1"], "--window"),
+    ("real_labels", [*LABELS, "--repeat", "0"], "--repeat"),
+]
+
+
+@pytest.fixture(scope="module")
+def train_scripts() -> dict[str, ModuleType]:
+    return {name: _load(name) for name in ("detector", "inpaint", "pseudo_labels", "real_labels")}
+
+
+@pytest.mark.parametrize(("script", "argv", "option"), TRAIN_CASES,
+                         ids=[f"{s} " + " ".join(a for a in argv if a != MISSING) for s, argv, _ in TRAIN_CASES])
+def test_train_script_refuses_bad_option_value(script, argv, option, train_scripts, capsys):
+    _check(train_scripts[script].main, argv, option, capsys)
+
+
+def test_every_train_script_is_covered():
+    assert {s for s, _, _ in TRAIN_CASES} == {p.stem for p in (REPO / "train").glob("*.py")}
