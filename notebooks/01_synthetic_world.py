@@ -30,9 +30,6 @@
 import os
 import tempfile
 
-import matplotlib
-
-matplotlib.use("Agg")  # headless: figures are still shown inline by the notebook front end
 import matplotlib.pyplot as plt
 import numpy as np
 

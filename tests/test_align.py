@@ -108,3 +108,23 @@ def test_collinear_residuals_do_not_depend_on_the_free_rotation():
     x0 = np.concatenate([Rotation.from_matrix(R).as_rotvec(), [c], t])
     best = min(minimize(cost, x0 + rng.normal(scale=0.3, size=7), method="BFGS").fun for _ in range(5))
     assert np.sum(res**2) <= best + 1e-8
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_mirrored_target_with_scale_matches_evo(seed):
+    """A reflected, scaled, noisy target (``det U det V < 0``): ``S = diag(1, 1, −1)`` enters both the
+    rotation and the scale ``c = tr(DS)/σ_x²`` (eq. 42). Reference: evo's ``umeyama_alignment``
+    (its own implementation), for the numpy and the JAX version separately; with ``tr(D)`` in place
+    of ``tr(DS)`` the scale is off by ``2 d₃/σ_x²`` (here several per cent)."""
+    x, _, R, t = _pair(seed, scale=1.0)
+    rng = np.random.default_rng(seed + 100)
+    y = 0.6 * (x * [1.0, 1.0, -1.0]) @ R.T + t + rng.normal(scale=1.5, size=x.shape)  # mirrored, shrunk
+    Re, te, ce = umeyama_alignment(x.T, y.T, with_scale=True)
+    assert np.linalg.det(Re) == pytest.approx(1.0, abs=1e-12)
+    R2, t2, c2 = umeyama_np(x, y, with_scale=True)
+    Rj, tj, cj = umeyama(jnp.asarray(x, jnp.float32), jnp.asarray(y, jnp.float32), with_scale=True)
+    assert (c2, float(cj)) == (pytest.approx(ce, rel=1e-12), pytest.approx(ce, rel=1e-5))
+    np.testing.assert_allclose(R2, Re, atol=1e-12)
+    np.testing.assert_allclose(t2, te, atol=1e-10)
+    np.testing.assert_allclose(np.asarray(Rj), Re, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(tj), te, atol=1e-3)

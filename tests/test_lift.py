@@ -188,3 +188,73 @@ def test_lines_pass_through_their_points_at_any_scale_and_survive_the_ply(lift, 
             / np.linalg.norm(pts32, axis=1)).max() < 1e-6
     save_line_cloud(tmp_path / "l32.ply", lines32)  # readable at every scale (f8 on disk when far out)
     assert len(load_line_cloud(tmp_path / "l32.ply")) == len(pts)
+
+
+def uniformity_pvalues(d: np.ndarray) -> list[float]:
+    """p-values of six tests of ``d`` (unit rows) against the uniform distribution on S².
+
+    Archimedes: every coordinate of a uniform unit vector is uniform on [−1, 1], so a
+    Kolmogorov–Smirnov test per axis (x, y, z) against U(−1, 1); and its fourth moment is
+    ``E[z⁴] = 1/5`` with ``Var[z⁴] = 1/9 − 1/25 = 16/225``, so a two-sided z-test of the sample mean
+    of ``d_k⁴`` per axis. The second-moment tests of :func:`isotropy_pvalues` cannot see a sampler
+    with cubic symmetry (normalised uniform-in-a-cube vectors have ``E[ddᵀ] = I/3`` exactly); these
+    can (its ``E[z⁴]`` is 0.18), and the KS tests see a missing or extra polar cap."""
+    n = d.shape[0]
+    ks = [float(stats.kstest(d[:, k], "uniform", args=(-1.0, 2.0)).pvalue) for k in range(3)]
+    z = (np.mean(d**4, axis=0) - 0.2) / np.sqrt(16.0 / 225.0 / n)
+    return ks + [float(p) for p in 2.0 * stats.norm.sf(np.abs(z))]
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def test_uniformity_tests_reject_cube_and_cap_samplers():
+    """Power of :func:`uniformity_pvalues` at the sample size used below (fixed seeds)."""
+    n = 50000
+    rng = np.random.default_rng(1)
+    assert min(uniformity_pvalues(_unit(rng.normal(size=(n, 3))))) > 1e-3  # the correct sampler passes
+    cube = _unit(rng.uniform(-1.0, 1.0, (n, 3)))
+    assert max(uniformity_pvalues(cube)[3:]) < 1e-20 and max(uniformity_pvalues(cube)[:3]) < 1e-20
+    v = _unit(rng.normal(size=(2 * n, 3)))
+    no_cap = v[v[:, 2] < np.cos(np.radians(20.0))][:n]  # a 20° cap around +z never drawn
+    assert uniformity_pvalues(no_cap)[2] < 1e-20
+
+
+def test_random_lift_directions_pass_the_uniformity_tests():
+    """Reference: the uniform distribution on S² (:func:`uniformity_pvalues`); the fixed key's
+    smallest p-value is 0.18, far above the 1e-3 threshold; a cube sampler gives < 1e-40."""
+    n = 50000
+    pts = np.random.default_rng(0).normal(size=(n, 3)) * 20
+    d = np.asarray(random_lift(pts, fixed_key(3)).directions, np.float64)
+    d = _unit(d)  # float32 output: renormalise before testing the distribution
+    p = uniformity_pvalues(d)
+    assert min(p) > 1e-3, p
+
+
+def test_paired_lift_sign_is_balanced():
+    """The direction of a pair's line must not reveal which point comes first, in index order or
+    in the pairing's own order. Reference: the binomial distribution B(pairs, 1/2)
+    (``scipy.stats.binomtest``); the pairs are read from the output (two points per identical line).
+    With the sign fixed, every line points from the lower to the higher index (p ≈ 1e-301)."""
+    n = 2001
+    pts = np.random.default_rng(0).uniform(-30, 30, (n, 3))
+    lines = paired_lift(pts, fixed_key(11))
+    d, m = np.asarray(lines.directions, np.float64), np.asarray(lines.moments, np.float64)
+    _, inverse, counts = np.unique(np.concatenate([d, m], 1), axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    assert sorted(np.bincount(counts)[1:].tolist()) == [1, 1000]  # 1000 pairs and the odd point out
+    order = np.argsort(inverse, kind="stable")
+    grouped = order[counts[inverse[order]] == 2].reshape(-1, 2)  # (lower index, higher index) of each pair
+    lo, hi = grouped[:, 0], grouped[:, 1]
+    assert np.all(lo < hi) and len(lo) == 1000
+    forward = np.sum(d[lo] * (pts[hi] - pts[lo]), axis=1) > 0
+    p_index = stats.binomtest(int(forward.sum()), len(lo), 0.5).pvalue
+    assert p_index > 1e-3, (int(forward.sum()), p_index)
+    # also balanced against the pairing order (first drawn → second drawn in the permutation)
+    partner = pairing(n, jax.random.split(fixed_key(11), 3)[0])
+    np.testing.assert_array_equal(partner[lo], hi)
+    perm = np.asarray(jax.random.permutation(jax.random.split(fixed_key(11), 3)[0], n))
+    a, b = perm[0 : n - 1 : 2], perm[1 : n - 1 : 2]
+    k = int(np.sum(np.sum(d[a] * (pts[b] - pts[a]), axis=1) > 0))
+    assert stats.binomtest(k, len(a), 0.5).pvalue > 1e-3, k

@@ -72,6 +72,31 @@ def test_peak_finder_matches_reference_on_random_sets():
             assert got == pytest.approx(ref.get_peak(e), abs=1e-9), (trial, len(e))
 
 
+def test_peak_finder_at_the_loop_bound_matches_reference():
+    """Sets of 15–17 offsets: 5–7 remain after trimming 5 at each end, right at the authors' loop
+    bound ``while len > 5`` (a set of exactly 5 is not searched; 6 and 7 are). Reference:
+    ``get_peak`` of tests/line2point_reference.py (the authors' numpy code)."""
+    rng = np.random.default_rng(0)
+    gp = jax.jit(get_peak)
+    with jax.enable_x64(True):
+        for m in (15, 16, 17):
+            for trial in range(40):
+                kind = trial % 4
+                if kind == 0:
+                    e = rng.standard_cauchy(m)
+                elif kind == 1:  # a tight cluster among uniform clutter
+                    e = np.concatenate([rng.normal(2.0, 0.05, m // 2), rng.uniform(-30, 30, m - m // 2)])
+                elif kind == 2:
+                    e = rng.uniform(-10, 10, m)
+                else:
+                    e = np.round(rng.normal(0, 3, m), 1)  # ties
+                valid = np.zeros(32, bool)
+                valid[:m] = True
+                padded = np.concatenate([e, rng.normal(size=32 - m)])
+                got = float(gp(jnp.asarray(padded), jnp.asarray(valid)))
+                assert got == pytest.approx(ref.get_peak(e), abs=1e-9), (m, trial, e.tolist())
+
+
 def test_select_smallest_is_stable_argsort():
     rng = np.random.default_rng(4)
     v = np.round(rng.uniform(0, 5, 3000), 1).astype(np.float32)  # heavy ties

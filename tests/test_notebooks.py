@@ -1,36 +1,95 @@
-"""Execute every notebook (jupytext ``.py`` percent sources) on tiny settings; any error fails.
+"""Execute every notebook (jupytext ``.py`` percent sources) on tiny settings and check what it shows.
 
-Each ``notebooks/*.py`` is converted with jupytext and run by nbclient in a ``python3`` kernel
-with ``PRIVSLAM_NB_TINY=1``.  A first injected cell turns warnings raised by privslam_jax code
-into errors inside the kernel; jupyter's own DeprecationWarnings in this process are tolerated
-by a local filter.
+Each ``notebooks/*.py`` is converted with jupytext and run once per module by nbclient in a
+``python3`` kernel with ``PRIVSLAM_NB_TINY=1``.  A first injected cell turns warnings raised by
+privslam_jax code into errors inside the kernel; jupyter's own DeprecationWarnings in this process
+are tolerated by a local filter.  Beyond "no cell raised", every notebook has an entry in
+:data:`EXPECTED`: the lines it must print (regular expressions, with the values the tiny settings
+imply) and the figures it must show.
 """
 
 import os
+import re
 import warnings
 from pathlib import Path
 
 import pytest
 
+from privslam_jax._shared import shared_dir
+
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.py"))
 STRICT_CELL = 'import warnings\nwarnings.filterwarnings("error", module=r"privslam_jax(\\..*)?$")'
+HAS_KITTI = shared_dir() is not None and (shared_dir() / "data/kitti_odometry/sequences/seq1").is_dir()
+
+EXPECTED = {
+    # SynthConfig(width=160, height=48, num_frames=3, stereo=True): fx = 0.58 · 160 = 92.8 px; the
+    # KITTI round trip stores 8-bit PNGs (error ≤ 1/510); seq1 of ../shared has 51 frames of 1226×370.
+    "01_synthetic_world": {
+        "stdout": [
+            r"^tiny run SynthConfig\(width=160, height=48, num_frames=3, seed=0, stereo=True",
+            r"^3 frames of 160x48, fx = 92\.8 px$",
+            r"^KittiSequence\('.*/sequences/synth', frames=3, size=160x48, stereo=True, poses=yes\)$",
+            r"^max \|image difference\| after the 8-bit PNG round trip: (\d\.\d{4}) \(≤ 1/510 expected\)$",
+            r"^read back: 3 frames, 160x48 px, stereo baseline 0\.540 m$",
+            r"^classes present: \[.*'(?:car|person)'.*\]$",
+            r"^KittiSequence\('.*/sequences/seq1', frames=51, size=1226x370, stereo=False, poses=yes\)$"
+            if HAS_KITTI else r"^\.\./shared is absent: skipping the real KITTI sequence$",
+        ],
+        # frames + boxes grid, stereo pair, camera path (+ the real KITTI frame and path)
+        "figures": 4 if HAS_KITTI else 3,
+    },
+}
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_executes(path, monkeypatch):
+@pytest.fixture(scope="module", params=NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def executed(request):
+    """``(path, executed notebook)``, run once per notebook."""
     jupytext = pytest.importorskip("jupytext")
     nbclient = pytest.importorskip("nbclient")
     nbformat = pytest.importorskip("nbformat")
-    monkeypatch.setenv("PRIVSLAM_NB_TINY", "1")
-    nb = jupytext.read(path)
-    nb.cells.insert(0, nbformat.v4.new_code_cell(STRICT_CELL))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        warnings.simplefilter("ignore", PendingDeprecationWarning)
-        client = nbclient.NotebookClient(
-            nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
-        )
-        client.execute()  # raises CellExecutionError (with the traceback) on any failing cell
-    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+    path = request.param
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("PRIVSLAM_NB_TINY", "1")
+        nb = jupytext.read(path)
+        nb.cells.insert(0, nbformat.v4.new_code_cell(STRICT_CELL))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", PendingDeprecationWarning)
+            client = nbclient.NotebookClient(
+                nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
+            )
+            client.execute()  # raises CellExecutionError (with the traceback) on any failing cell
+        assert os.environ["PRIVSLAM_NB_TINY"] == "1"
+    return path, nb
+
+
+def _outputs(nb):
+    return [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+
+
+def _stream(nb, name: str) -> str:
+    return "".join(o["text"] for o in _outputs(nb) if o.get("output_type") == "stream" and o.get("name") == name)
+
+
+def test_notebook_executes_without_errors_or_stderr(executed):
+    path, nb = executed
+    outputs = _outputs(nb)
     assert not [o for o in outputs if o.get("output_type") == "error"]
-    assert os.environ["PRIVSLAM_NB_TINY"] == "1"
+    assert _stream(nb, "stderr") == "", f"{path.name} wrote to stderr"
+    assert path.stem in EXPECTED, f"add the expected outputs of {path.name} to EXPECTED in {__file__}"
+
+
+def test_notebook_prints_what_its_settings_imply(executed):
+    path, nb = executed
+    lines = _stream(nb, "stdout").splitlines()
+    for pattern in EXPECTED[path.stem]["stdout"]:
+        hits = [m for m in (re.search(pattern, line) for line in lines) if m]
+        assert hits, f"{path.name}: no output line matches {pattern!r}; stdout was:\n" + "\n".join(lines)
+        if "round trip" in pattern:  # the error it printed (4 decimals) is within the bound it states
+            assert float(hits[0].group(1)) <= round(1 / 510, 4)
+
+
+def test_notebook_shows_its_figures(executed):
+    path, nb = executed
+    figures = [o for o in _outputs(nb) if o.get("output_type") == "display_data" and "image/png" in o.get("data", {})]
+    assert len(figures) == EXPECTED[path.stem]["figures"], f"{path.name} showed {len(figures)} figures"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -109,11 +110,27 @@ def test_other_channel_counts_use_xla():
 
 
 def test_bad_shapes_raise():
+    """The function's own check raises ``ValueError`` naming the expected and the given shapes; under
+    the test suite's jaxtyping hook (pyproject ``--jaxtyping-packages``) the annotation check runs
+    first and names the offending parameter."""
+    import inspect
+
     x, k, b = _inputs((1, 8, 8, 3), 16)
-    with pytest.raises((ValueError, TypeError)):
-        rgb_stem(x[..., :2], k[:, :, :2], b)
-    with pytest.raises((ValueError, TypeError)):
-        rgb_stem(x, k, b[:8])
+    plain = inspect.unwrap(rgb_stem)  # without the jaxtyping/beartype wrapper
+    with pytest.raises(ValueError, match=re.escape("rgb_stem expects x (B,H,W,3), kernel (3,3,3,C), bias (C,); "
+                                                   "got (1, 8, 8, 2), (3, 3, 2, 16), (16,)")):
+        plain(x[..., :2], k[:, :, :2], b)
+    with pytest.raises(ValueError, match=re.escape("got (1, 8, 8, 3), (3, 3, 3, 16), (8,)")):
+        plain(x, k, b[:8])
+    with pytest.raises(ValueError, match=re.escape("got (8, 8, 3), (3, 3, 3, 16), (16,)")):
+        plain(x[0], k, b)
+    if plain is not rgb_stem:
+        from jaxtyping import TypeCheckError
+
+        with pytest.raises(TypeCheckError, match="parameter 'x'"):
+            rgb_stem(x[..., :2], k[:, :, :2], b)
+        with pytest.raises(TypeCheckError, match="parameter 'bias'"):
+            rgb_stem(x, k, b[:8])
 
 
 def test_without_compiler_falls_back_with_a_warning(tmp_path):

@@ -91,14 +91,57 @@ def test_search_by_projection_equals_brute_force():
     assert (kp == src).mean() > 0.8
 
 
+def _three_maxima_keep(angle_a: np.ndarray, angle_b: np.ndarray, bins: int = 30) -> np.ndarray:
+    """ORB-SLAM's ``ComputeThreeMaxima`` written as its loop: histogram of ``(a − b) mod 360`` in
+    ``bins`` bins of 360/bins degrees; the three largest bins (strict ``>``: on ties the earlier
+    bin), the second and third dropped when below 10 % of the largest; keep the matches in them."""
+    rot = [(x - y) % 360.0 for x, y in zip(angle_a.tolist(), angle_b.tolist())]
+    which = [min(int(r * bins / 360.0), bins - 1) for r in rot]
+    hist = [which.count(k) for k in range(bins)]
+    m1 = m2 = m3 = 0
+    i1 = i2 = i3 = -1
+    for k, c in enumerate(hist):
+        if c > m1:
+            m3, i3, m2, i2, m1, i1 = m2, i2, m1, i1, c, k
+        elif c > m2:
+            m3, i3, m2, i2 = m2, i2, c, k
+        elif c > m3:
+            m3, i3 = c, k
+    if m2 < 0.1 * m1:
+        i2 = i3 = -1
+    elif m3 < 0.1 * m1:
+        i3 = -1
+    return np.array([w in (i1, i2, i3) for w in which])
+
+
 def test_rotation_consistency_keeps_the_dominant_rotation():
+    """Reference: :func:`_three_maxima_keep`. Inliers rotate by 30 ± 2° (all in bin 2, 24–36°); the
+    20 outliers are uniform, so none of their bins reaches 10 % of the 180 inliers: exactly the
+    inliers and the outliers that happen to fall in bin 2 are kept."""
     rng = np.random.default_rng(2)
     a = rng.uniform(0, 360, 200)
-    b = np.mod(a - 30.0 + rng.normal(0, 2, 200), 360)
+    b = np.mod(a - 30.0 + rng.uniform(-2, 2, 200), 360)
     b[:20] = rng.uniform(0, 360, 20)  # outliers
     keep = rotation_consistent(a, b)
-    assert keep[20:].mean() > 0.95
-    assert keep[:20].mean() < 0.5
+    np.testing.assert_array_equal(keep, _three_maxima_keep(a, b))
+    assert keep[20:].all()
+    outlier_bin = (np.mod(a[:20] - b[:20], 360) // 12).astype(int)
+    np.testing.assert_array_equal(keep[:20], outlier_bin == 2)
+    assert keep[:20].sum() <= 2
+
+
+def test_rotation_consistency_three_bins_and_the_ten_percent_rule():
+    """Groups of 100, 20, 15 and 5 matches at 30°, 100°, 200°, 300° (bins 2, 8, 16 and 24–25): the three
+    largest bins are kept; with the third group cut to 9 (< 10 % of 100) only two bins are kept,
+    and a group of 9 in second place drops both smaller bins. Reference: :func:`_three_maxima_keep`."""
+    rng = np.random.default_rng(3)
+    for sizes, kept_groups in (((100, 20, 15, 5), (0, 1, 2)), ((100, 20, 9, 5), (0, 1)), ((100, 9, 5, 5), (0,))):
+        groups = np.repeat(np.arange(4), sizes)
+        a = rng.uniform(0, 360, len(groups))
+        b = np.mod(a - np.array([30.0, 100.0, 200.0, 300.0])[groups] + rng.uniform(-3, 3, len(groups)), 360)
+        keep = rotation_consistent(a, b)
+        np.testing.assert_array_equal(keep, _three_maxima_keep(a, b))
+        np.testing.assert_array_equal(keep, np.isin(groups, kept_groups))
 
 
 def test_stereo_depth_of_a_shifted_texture():
