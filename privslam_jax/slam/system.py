@@ -7,8 +7,9 @@ synchronously right after a keyframe is chosen, so results do not depend on thre
   depth scaled to 1; stereo/RGB-D: the first frame with ≥ ``min_init_points`` keypoints with
   depth becomes a keyframe with one map point per such keypoint.
 * **Tracking** (:mod:`.tracking`) — constant-velocity prediction + projection search, PnP-RANSAC
-  against the reference keyframe when that fails, then the local map; relocalisation against
-  recent keyframes when lost.  A lost frame gets the motion-model prediction and ``tracked=False``.
+  against the reference keyframe when that fails, then the local map; when lost, relocalisation
+  along the motion model (the recent keyframes' points searched around the constant-velocity
+  poses, frames possibly dropped) and then by appearance against recent keyframes.  A lost frame gets the motion-model prediction and ``tracked=False``.
 * **Keyframes** (ORB-SLAM ``NeedNewKeyFrame`` with an always-idle mapper): a frame becomes a
   keyframe when it tracks fewer than ``ratio × `` the reference keyframe's well-observed points
   (0.9 mono, 0.75 stereo/RGB-D) or ``max_frames_between_kf`` frames passed, and (stereo/RGB-D) when
@@ -46,6 +47,7 @@ from privslam_jax.slam.tracking import (
     Frame,
     TrackingConfig,
     relocalise,
+    relocalise_along_motion,
     track_keyframe_pnp,
     track_local_map,
     track_motion_model,
@@ -329,7 +331,7 @@ class Slam:
         last = self._last_good
         T_last = self._pose_now(last)
         gap = frame.index - last.index
-        n = 0
+        n, along_motion = 0, False
         t = time.perf_counter()
         if len(frame.feats) >= 10:
             if self._velocity is not None and self._lost_since <= 5:
@@ -355,6 +357,16 @@ class Slam:
                 frame.point_ids[:] = -1
                 n = track_keyframe_pnp(frame, [self._ref_kf.id], m, seed, tcfg)
                 tim["pnp"] = time.perf_counter() - t
+            if (n < tcfg.min_inliers and 0 < self._lost_since <= tcfg.reloc_motion_steps
+                    and self._velocity is not None):
+                t = time.perf_counter()
+                keep = (n, frame.T_c_w, frame.point_ids.copy())
+                n_motion = relocalise_along_motion(frame, m, T_last, self._velocity, gap, tcfg)
+                if n_motion > n:
+                    n, along_motion = n_motion, True
+                else:
+                    n, frame.T_c_w, frame.point_ids = keep
+                tim["reloc_motion"] = time.perf_counter() - t
             if n < 10 and self._lost_since > 0:
                 t = time.perf_counter()
                 frame.point_ids[:] = -1
@@ -369,7 +381,13 @@ class Slam:
                 n = track_local_map(frame, m, tcfg)
                 tim["local_map"] = time.perf_counter() - t
         tracked = n >= tcfg.min_inliers
+        if tracked and along_motion:
+            self.events.append(f"relocalised along the motion model at frame {frame.index} ({n} inliers)")
+            self._frames_since_kf = cfg.max_frames_between_kf  # a keyframe: new points where the map is thin
         if tracked:
+            if self._lost_since > 0:
+                self.events.append(f"tracking resumed at frame {frame.index} after {self._lost_since} lost frames "
+                                   f"({n} inliers)")
             if gap == 1 and self._lost_since == 0:
                 self._velocity = frame.T_c_w @ np.linalg.inv(T_last)
             elif self._velocity is None and gap == 1:

@@ -38,7 +38,7 @@ from privslam_jax.slam.refine import refine_pose as _jax_refine_pose
 from privslam_jax.types import Camera
 
 __all__ = ["TrackingConfig", "Frame", "refine_pose", "pnp_ransac", "track_motion_model", "track_local_map",
-           "track_keyframe_pnp", "relocalise"]
+           "track_keyframe_pnp", "relocalise", "relocalise_along_motion"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,8 +53,10 @@ class TrackingConfig:
     """Search radius (× scale^level) for local-map points."""
     min_motion_matches: int = 20
     """Below this many motion-model matches the PnP fallback runs."""
-    min_inliers: int = 30
-    """Inliers needed to call a frame tracked."""
+    min_inliers: int = 20
+    """Inliers needed to call a frame tracked (ORB-SLAM3: 30; 20 lets tracking resume after a fault
+    where the map ahead is thin — the refined inliers pass a χ² test, and a frame relocalised along
+    the motion model agrees with the prediction too; experiments/robustness.py)."""
     reloc_min_inliers: int = 50
     """Inliers needed to accept a relocalisation."""
     max_local_keyframes: int = 20
@@ -65,6 +67,11 @@ class TrackingConfig:
     """RANSAC iterations."""
     reloc_candidates: int = 12
     """Keyframes tried by relocalisation (most recent first)."""
+    reloc_motion_steps: int = 12
+    """Relocalisation along the motion model: after a loss, the camera is assumed to have kept its
+    velocity for 1…this many frames beyond the frames seen since (covering dropped frames too)."""
+    reloc_motion_radius: float = 4.0
+    """Search-radius multiplier of the local-map search around those predicted poses."""
 
 
 @dataclasses.dataclass
@@ -209,11 +216,17 @@ def track_keyframe_pnp(frame: Frame, kf_ids: list[int], m: Map, seed: int, cfg: 
     return 0
 
 
-def track_local_map(frame: Frame, m: Map, cfg: TrackingConfig, radius_scale: float = 1.0) -> int:
-    """Project the local map at ``frame.T_c_w``, search, refine. Returns inliers."""
+def track_local_map(frame: Frame, m: Map, cfg: TrackingConfig, radius_scale: float = 1.0,
+                    kf_ids: np.ndarray | None = None) -> int:
+    """Project the local map at ``frame.T_c_w``, search, refine. Returns inliers.
+
+    The local map is the points of the keyframes covisible with the frame's matches, or of
+    ``kf_ids`` when given (a frame without matches yet).
+    """
     cur = frame.point_ids[frame.point_ids >= 0]
-    kf_ids, _ = m.covisible(cur)
-    kf_ids = kf_ids[: cfg.max_local_keyframes]
+    if kf_ids is None:
+        kf_ids, _ = m.covisible(cur)
+    kf_ids = np.asarray(kf_ids, np.int64)[: cfg.max_local_keyframes]
     if len(kf_ids) == 0:
         return _optimise_frame(frame, m, frame.T_c_w)
     pts = np.concatenate([m.keyframes[k].point_ids for k in kf_ids])
@@ -244,6 +257,28 @@ def track_local_map(frame: Frame, m: Map, cfg: TrackingConfig, radius_scale: flo
     inl = frame.point_ids[frame.point_ids >= 0]
     m._found.data[inl] += 1
     return n
+
+
+def relocalise_along_motion(frame: Frame, m: Map, T_last: np.ndarray, velocity: np.ndarray, gap: int,
+                            cfg: TrackingConfig) -> int:
+    """Relocalise a frame after a short loss by searching the recent keyframes' points around the
+    poses the constant-velocity model predicts ``gap + j`` frames after ``T_last``, j = 0…
+    ``reloc_motion_steps − 1`` (``gap`` frames were seen since; the extra steps cover frames that
+    never arrived), with ``reloc_motion_radius`` × the local-map radius; keeps the pose with the most
+    refined inliers.  Appearance-based :func:`relocalise` needs descriptor matches that survive a
+    ratio test against a whole keyframe, which fail after a few metres of forward motion; the
+    prediction narrows the search instead.  Returns the inliers (0: no pose set, no matches kept).
+    """
+    recent = np.arange(len(m.keyframes) - 1, max(-1, len(m.keyframes) - 1 - cfg.max_local_keyframes), -1)
+    best: tuple[int, np.ndarray | None, np.ndarray | None] = (0, None, None)
+    for j in range(cfg.reloc_motion_steps):
+        frame.T_c_w = np.linalg.matrix_power(velocity, gap + j) @ T_last
+        frame.point_ids[:] = -1
+        n = track_local_map(frame, m, cfg, radius_scale=cfg.reloc_motion_radius, kf_ids=recent)
+        if n > best[0]:
+            best = (n, frame.T_c_w, frame.point_ids.copy())
+    frame.T_c_w, frame.point_ids = best[1], best[2] if best[2] is not None else np.full(len(frame.feats), -1)
+    return best[0]
 
 
 def relocalise(frame: Frame, m: Map, seed: int, cfg: TrackingConfig) -> int:
