@@ -24,7 +24,7 @@ from typing import Any
 
 from privslam_jax.data.files import write_atomic
 
-__all__ = ["MANIFEST", "claim_run_folder", "complete_run_folder", "read_manifest", "run_is_complete"]
+__all__ = ["MANIFEST", "check_run_folder", "claim_run_folder", "complete_run_folder", "read_manifest", "run_is_complete"]
 
 MANIFEST = "manifest.json"
 
@@ -56,16 +56,10 @@ def run_is_complete(folder: str | Path) -> bool:
     return bool(manifest and manifest.get("complete") is True)
 
 
-def claim_run_folder(out: str | Path, command: str, arguments: dict[str, Any], overwrite: bool = False,
-                     companions: tuple[Path, ...] = ()) -> dict[str, Any]:
-    """Make ``out`` this run's folder and write its manifest (``"complete": false``); returns the manifest.
+def check_run_folder(out: str | Path, overwrite: bool = False, companions: tuple[Path, ...] = ()) -> dict[str, Any] | None:
+    """Raise ``ValueError`` if :func:`claim_run_folder` would refuse ``out``; writes nothing.
 
-    ``companions``: files outside ``out`` that the run writes too (``filter``/``synth``:
-    ``DIR/poses/NAME.txt``); one that exists is cleared with an earlier run of ``out`` and refused
-    when no earlier run of ``out`` owns it.
-
-    Raises ``ValueError`` if ``out`` is a file, holds files of something else, or holds another
-    run and ``overwrite`` is false, or a companion exists that no earlier run of ``out`` owns.
+    Returns the earlier run's manifest (``None`` if there is none).
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -82,7 +76,24 @@ def claim_run_folder(out: str | Path, command: str, arguments: dict[str, Any], o
     for path in companions:
         if path.exists() and previous is None:
             raise ValueError(f"{path} already exists and no privslam run in {out} owns it; choose a new --out")
-    if previous is not None:  # an earlier run, and overwrite: clear it
+    return previous
+
+
+def claim_run_folder(out: str | Path, command: str, arguments: dict[str, Any], overwrite: bool = False,
+                     companions: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """Make ``out`` this run's folder and write its manifest (``"complete": false``); returns the manifest.
+
+    ``companions``: files outside ``out`` that the run writes too (``filter``/``synth``:
+    ``DIR/poses/NAME.txt``); one that exists is cleared with an earlier run of ``out`` and refused
+    when no earlier run of ``out`` owns it.
+
+    Raises ``ValueError`` if ``out`` is a file, holds files of something else, or holds another
+    run and ``overwrite`` is false, or a companion exists that no earlier run of ``out`` owns
+    (:func:`check_run_folder`, which commands call first when they can refuse bad input before
+    writing anything).
+    """
+    out = Path(out)
+    if check_run_folder(out, overwrite, companions) is not None:  # an earlier run, and overwrite: clear it
         for child in out.iterdir():
             shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
         for path in companions:

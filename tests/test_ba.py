@@ -276,3 +276,50 @@ def test_bad_input_raises_clear_errors():
         bundle_adjust(T0, X0, oc, op, uv, None, fixed[:2], CAM)
     with pytest.raises(ValueError, match="intrinsics"):
         bundle_adjust(T0, X0, oc, op, uv, None, fixed, np.ones((2, 4)))
+
+
+def test_inlier_mask_uses_3dof_threshold_on_stereo_rows_inside_the_chi2_band(x64):
+    """Whitened χ² set by construction on both sides of and inside (5.991, 7.815), on stereo and
+    monocular rows, at a fixed solution (``max_iterations=0``: the mask is evaluated at the start).
+
+    Reference: the numpy χ² test ``s < 7.815`` (3 dof) on stereo rows, ``s < 5.991`` (2 dof) on
+    monocular ones, ``s`` re-evaluated in numpy from the poses and points. Inside the band the two
+    thresholds disagree: stereo rows there are inliers, monocular rows outliers."""
+    rng = np.random.default_rng(11)
+    targets = np.array([1.0, 5.5, 6.1, 6.5, 7.0, 7.5, 7.7, 8.2, 12.0])  # four inside (5.991, 7.815) and 6.1
+    n_pts = 2 * len(targets)
+    X = np.stack([rng.uniform(-1.5, 3, n_pts), rng.uniform(-2, 2, n_pts), rng.uniform(6, 12, n_pts)], 1)
+    poses = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [-1.0, 0.1, 0.0, 0.01, -0.02, 0.0]])
+    T = jaxlie.SE3(jnp.stack([_se3_from_vec(v).wxyz_xyz for v in poses]))
+    Tm = np.asarray(T.as_matrix())
+    oc = np.repeat(np.arange(2), n_pts).astype(np.int32)  # every point seen by both cameras
+    op = np.tile(np.arange(n_pts), 2).astype(np.int32)
+    n_o = len(oc)
+    stereo = np.arange(n_o) % 2 == 0
+    s_target = np.tile(targets, -(-n_o // len(targets)))[:n_o]
+    isg = rng.uniform(0.5, 1.5, n_o)
+    # an error of whitened squared norm s_target in a random direction (2-D mono, 3-D stereo)
+    direction = rng.normal(size=(n_o, 3))
+    direction[~stereo, 2] = 0.0
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    err = direction * np.sqrt(s_target / isg)[:, None]
+    p_c = np.einsum("oij,oj->oi", Tm[oc, :3, :3], X[op]) + Tm[oc, :3, 3]
+    u = CAM_ST.fx * p_c[:, 0] / p_c[:, 2] + CAM_ST.cx
+    v = CAM_ST.fy * p_c[:, 1] / p_c[:, 2] + CAM_ST.cy
+    u_r = u - CAM_ST.fx * BASELINE / p_c[:, 2]
+    uv = np.stack([u, v], 1) - err[:, :2]
+    ur = np.where(stereo, u_r - err[:, 2], -1.0)
+    assert np.all(ur[stereo] >= 0)
+    fixed = np.array([True, False])
+    res = bundle_adjust(T, X, oc, op, uv, None, fixed, CAM_ST, BAConfig(max_iterations=0),
+                        obs_inv_sigma2=isg, obs_u_right=ur)
+    assert int(res.iterations) == 0
+    np.testing.assert_array_equal(np.asarray(res.T_c_w.wxyz_xyz), np.asarray(T.wxyz_xyz))
+    # independent numpy χ² at the (unchanged) solution
+    s = isg * ((u - uv[:, 0]) ** 2 + (v - uv[:, 1]) ** 2 + np.where(stereo, (u_r - ur) ** 2, 0.0))
+    np.testing.assert_allclose(s, s_target, rtol=1e-9)
+    band = (s > 5.991 + 1e-3) & (s < 7.815 - 1e-3)
+    assert band[stereo].sum() >= 4 and band[~stereo].sum() >= 4
+    expected = s < np.where(stereo, 7.815, 5.991)
+    assert expected[stereo & band].all() and not expected[~stereo & band].any()
+    np.testing.assert_array_equal(np.asarray(res.inliers), expected)

@@ -155,7 +155,7 @@ def test_filter_takes_a_plain_folder_of_frames(tmp_path):
     assert not (tmp_path / "o2").exists()  # refused before anything was written
 
 
-def test_write_failure_is_an_error_not_a_shorter_sequence(tmp_path, capsys):
+def test_write_failure_is_an_error_not_a_shorter_sequence(tmp_path, capsys, monkeypatch):
     """Issue 15 item 3: cv2.imwrite's result was unchecked, so a frame that could not be written
     vanished and the run still said 'filtered sequence written'."""
     from privslam_jax.data.images import read_image, write_image_file
@@ -180,11 +180,21 @@ def test_write_failure_is_an_error_not_a_shorter_sequence(tmp_path, capsys):
     weights = _tiny_checkpoint(tmp_path / "real.npz", domain="real")
     seq = _real_like_sequence(tmp_path / "real", synthetic=False)
     out = tmp_path / "out"
-    (out / "sequences" / "s" / "image_2" / "000001.png").mkdir(parents=True)
+    import privslam_jax.inpaint.sequence as sequence_module
+
+    claim = sequence_module.claim_run_folder
+
+    def claim_then_block(folder, *args, **kwargs):  # a folder where frame 1 should go, once the run owns `out`
+        manifest = claim(folder, *args, **kwargs)
+        (folder / "image_2" / "000001.png").mkdir(parents=True)
+        return manifest
+
+    monkeypatch.setattr(sequence_module, "claim_run_folder", claim_then_block)
     assert main(["filter", str(seq), "--masks", "detect", "--detector", str(weights), "--method", "black",
                  "--out", str(out)]) == 2
     captured = capsys.readouterr()
     assert "000001.png" in captured.err and "written" not in captured.out
+    assert json.loads((out / "sequences" / "s" / "manifest.json").read_text())["complete"] is False
 
 
 def test_filter_picks_the_embedded_inpainter_for_the_frames(tmp_path):

@@ -59,3 +59,18 @@ def test_energy_gradient_matches_finite_differences():
 def test_too_few_lines():
     with pytest.raises(ValueError, match="more than 16"):
         gradient_attack(_lines(np.zeros((5, 3)), np.ones((5, 3))))
+
+
+@pytest.mark.parametrize("sigma", [0.3, 2.5])
+def test_energy_value_matches_closed_form(sigma):
+    """``E(t) = Σ_i Σ_{j∈𝒩(i)} σ²·log(1 + ‖x_i − x_j‖²/σ²)`` with ``x_i = a_i + t_i d_i``, evaluated by
+    plain numpy loops at σ ≠ 1 (where σ and σ² inside the log differ)."""
+    rng = np.random.default_rng(4)
+    a, d = rng.normal(size=(9, 3)) * 2, rng.normal(size=(9, 3))
+    nb = rng.integers(0, 9, (9, 3))
+    t = rng.normal(size=9)
+    x = a + t[:, None] * d
+    expected = sum(sigma**2 * np.log(1.0 + np.sum((x[i] - x[j]) ** 2) / sigma**2) for i in range(9) for j in nb[i])
+    with jax.enable_x64(True):
+        got = float(consistency_energy(jnp.asarray(t), jnp.asarray(a), jnp.asarray(d), jnp.asarray(nb), sigma))
+    assert got == pytest.approx(expected, rel=1e-12)

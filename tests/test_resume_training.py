@@ -126,20 +126,9 @@ def _assert_same_npz(a: Path, b: Path) -> None:
 
 def _yolo_dataset(root: Path, n: int = 8, size: int = 64) -> None:
     """``n`` flat images with two coloured boxes each (class 0 red, 1 green), YOLO layout."""
-    rng = np.random.default_rng(0)
-    (root / "images" / "train").mkdir(parents=True)
-    (root / "labels" / "train").mkdir(parents=True)
-    for i in range(n):
-        img = np.full((size, size, 3), 60, np.uint8)
-        lines = []
-        for _ in range(2):
-            c = int(rng.integers(0, 2))
-            w, h = (int(v) for v in rng.integers(12, 30, 2))
-            x, y = int(rng.integers(0, size - w)), int(rng.integers(0, size - h))
-            img[y : y + h, x : x + w] = (220, 40, 40) if c == 0 else (40, 220, 40)
-            lines.append(f"{c} {(x + w / 2) / size:.6f} {(y + h / 2) / size:.6f} {w / size:.6f} {h / size:.6f}")
-        cv2.imwrite(str(root / "images" / "train" / f"{i:03d}.png"), img[..., ::-1])
-        (root / "labels" / "train" / f"{i:03d}.txt").write_text("\n".join(lines) + "\n")
+    from test_detect_train import _make_dataset
+
+    _make_dataset(root, n=n, size=size, seed=0)
 
 
 def test_detector_killed_between_checkpoints_resumes_to_identical_weights(tmp_path):

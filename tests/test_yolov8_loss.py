@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from privslam_jax.detect.loss import LossConfig, bbox_ciou, detection_loss, targets_to_padded
+from privslam_jax.detect.loss import LossConfig, bbox_ciou, detection_loss, targets_to_padded, task_aligned_assign
 
 
 @pytest.fixture(scope="module")
@@ -125,3 +125,91 @@ def test_targets_to_padded_keeps_order_per_image():
     assert np.asarray(labels).tolist() == [[6, 0, 0], [5, 7, 0]]
     assert np.asarray(mask).tolist() == [[True, False, False], [True, True, False]]
     np.testing.assert_allclose(np.asarray(boxes)[1, 0], [5, 2.5, 15, 7.5])
+
+
+def test_assigner_candidates_are_strictly_inside_on_all_four_sides():
+    """Hand-made anchors inside the gt box on all four sides, on its edge, and outside on one or two
+    sides. Every predicted box equals the gt box (CIoU 1) and there are ``topk`` anchors, so the
+    positives are exactly the candidates. Reference: numpy ``x1 < x < x2 and y1 < y < y2``."""
+    gt = np.array([20.0, 20.0, 60.0, 44.0])  # both sides ≥ 8 px: no widening
+    anchors = np.array([
+        [30.0, 30.0], [50.0, 40.0], [21.0, 43.0],  # inside on all four sides
+        [20.0, 30.0],  # on the left edge (distance 0)
+        [10.0, 30.0], [70.0, 30.0], [40.0, 10.0], [40.0, 50.0],  # outside on one side
+        [10.0, 10.0], [70.0, 50.0],  # outside on two sides
+    ])
+    a = len(anchors)
+    cfg = LossConfig(topk=a)
+    boxes = jnp.asarray(np.stack([gt, [0.0, 0.0, 0.0, 0.0]])[None], jnp.float32)  # second gt: padding
+    asg = task_aligned_assign(
+        jnp.full((1, a, 2), 0.5, jnp.float32), jnp.asarray(np.tile(gt, (1, a, 1)), jnp.float32),
+        jnp.asarray(anchors, jnp.float32), jnp.array([[1, 0]], jnp.int32), boxes, jnp.array([[True, False]]), cfg)
+    inside = (anchors[:, 0] > gt[0]) & (anchors[:, 0] < gt[2]) & (anchors[:, 1] > gt[1]) & (anchors[:, 1] < gt[3])
+    assert inside.sum() == 3
+    np.testing.assert_array_equal(np.asarray(asg.fg_mask)[0], inside)
+    np.testing.assert_array_equal(np.asarray(asg.target_gt_idx)[0][inside], 0)
+    # positives: one-hot class 1 scaled by (t/max t)·max CIoU = 1; background: 0
+    expected_scores = np.zeros((a, 2))
+    expected_scores[inside, 1] = 1.0
+    np.testing.assert_allclose(np.asarray(asg.target_scores)[0], expected_scores, atol=1e-5)
+
+
+def _dfl_numpy(logits: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """ultralytics ``DFLoss``: ``tl = ⌊t⌋, tr = tl + 1, wl = tr − t, wr = 1 − wl``,
+    ``CE(z, tl)·wl + CE(z, tr)·wr`` (float64)."""
+    m = logits.max(-1, keepdims=True)
+    logp = logits - m - np.log(np.sum(np.exp(logits - m), -1, keepdims=True))
+    tl = np.floor(target).astype(int)
+    tr = tl + 1
+    wl = tr - target
+    wr = 1 - wl
+    ce_l = -np.take_along_axis(logp, tl[..., None], -1)[..., 0]
+    ce_r = -np.take_along_axis(logp, tr[..., None], -1)[..., 0]
+    return ce_l * wl + ce_r * wr
+
+
+def test_loss_on_a_hand_made_case_matches_numpy():
+    """One gt box on a 32×32 input (levels 4×4, 2×2, 1×1), DFL logits peaked near every anchor's
+    distances to the gt (so the candidates overlap it). Given the returned assignment, the three
+    gained terms are recomputed in float64 numpy: predicted distances ``Σ_k k·softmax_k`` over bins
+    ``k = 0..15``, box ``Σ (1 − CIoU)·w / S`` (:func:`_ciou_numpy`), DFL by :func:`_dfl_numpy` on the
+    target distances clamped to ``[0, 14.99]``, BCE ``Σ (1 − y)x + log(1 + e^{−x}) / S``."""
+    rng = np.random.default_rng(5)
+    shapes, strides, r = ((4, 4), (2, 2), (1, 1)), (8, 16, 32), 16
+    anc, strd = [], []
+    for (h, w), s in zip(shapes, strides):
+        yy, xx = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
+        anc.append(np.stack([xx.ravel(), yy.ravel()], 1))
+        strd.append(np.full(h * w, float(s)))
+    anchors, stride = np.concatenate(anc), np.concatenate(strd)[:, None]
+    a = len(anchors)
+    gt = np.array([5.3, 6.1, 27.7, 24.9])  # pixels; distances are not whole grid units
+    dist_gt = np.concatenate([anchors - gt[:2] / stride, gt[2:] / stride - anchors], 1)  # (A, 4) grid units
+    k = np.arange(r)
+    logits = -((k[None, None] - np.clip(dist_gt, 0, r - 1)[..., None]) ** 2) / (2 * 0.7**2)
+    logits = logits + rng.normal(0, 0.3, logits.shape)  # (A, 4, 16)
+    cls = rng.normal(0, 1.5, (1, a, 2))
+    labels, boxes, mask = jnp.array([[1]], jnp.int32), jnp.asarray(gt[None, None], jnp.float32), jnp.array([[True]])
+    losses, asg = jax.jit(detection_loss, static_argnums=(5,))(
+        jnp.asarray(logits.reshape(1, a, 4 * r), jnp.float32), jnp.asarray(cls, jnp.float32), labels, boxes, mask, shapes)
+    fg = np.asarray(asg.fg_mask)[0]
+    y = np.asarray(asg.target_scores, np.float64)[0]
+    w = np.where(fg, y.sum(-1), 0.0)
+    assert fg.sum() >= 4 and (w > 0.1).sum() >= 4
+    inside = (anchors * stride > gt[:2]).all(1) & (anchors * stride < gt[2:]).all(1)
+    assert not (fg & ~inside).any()  # positives are candidates
+    S = max(y.sum(), 1.0)
+    # predicted boxes (grid units) from bins 0..15
+    p = np.exp(logits - logits.max(-1, keepdims=True))
+    dist = (p / p.sum(-1, keepdims=True)) @ k.astype(np.float64)
+    pred = np.concatenate([anchors - dist[:, :2], anchors + dist[:, 2:]], 1)
+    tbox = np.asarray(asg.target_boxes, np.float64)[0] / stride
+    box = np.sum((1 - _ciou_numpy(pred[fg], tbox[fg])) * w[fg]) / S
+    tdist = np.clip(np.concatenate([anchors - tbox[:, :2], tbox[:, 2:] - anchors], 1), 0, r - 1 - 0.01)
+    frac = tdist[fg] - np.floor(tdist[fg])
+    assert np.abs(frac - 0.5).max() > 0.2  # the two bin weights differ
+    dfl = np.sum(_dfl_numpy(logits[fg], tdist[fg]).mean(-1) * w[fg]) / S
+    x = cls[0]
+    bce = np.sum((1 - y) * x + np.logaddexp(0.0, -x)) / S
+    expected = np.array([7.5 * box, 0.5 * bce, 1.5 * dfl])
+    np.testing.assert_allclose(np.asarray(losses, np.float64), expected, rtol=2e-5)

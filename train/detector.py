@@ -37,7 +37,7 @@ COCO_NAMES_8 = ("person", "bicycle", "car", "motorcycle", "airplane", "bus", "tr
 
 
 def main(argv: list[str] | None = None) -> int:
-    from privslam_jax.commands.argtypes import (multiple_of_32, nonnegative_float, nonnegative_int, open_unit_interval,
+    from privslam_jax.argtypes import (multiple_of_32, nonnegative_float, nonnegative_int, open_unit_interval,
                                                 positive_float, positive_int, seed_list, unit_interval)
     from privslam_jax.detect.predict import Detector, DetectorConfig
     from privslam_jax.detect.train import TrainConfig, train

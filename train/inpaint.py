@@ -38,7 +38,7 @@ configure_xla()
 
 
 def main(argv: list[str] | None = None) -> int:
-    from privslam_jax.commands.argtypes import (nonnegative_float, nonnegative_int, open_unit_interval, positive_float,
+    from privslam_jax.argtypes import (nonnegative_float, nonnegative_int, open_unit_interval, positive_float,
                                                 positive_int, seed_list, unit_interval)
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -41,7 +41,7 @@ def runs_of(folder: Path) -> list[list[Path]]:
 
 def main(argv: list[str] | None = None) -> int:
     from privslam_jax._shared import shared_dir
-    from privslam_jax.commands.argtypes import positive_int, unit_interval
+    from privslam_jax.argtypes import positive_int, unit_interval
     from privslam_jax.data.yolo import link_mixed_split
     from privslam_jax.detect import PRIVACY_CLASSES, Detector, DetectorConfig
     from privslam_jax.detect.pseudo import PseudoLabelConfig, export_pseudo_yolo

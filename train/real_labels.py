@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     import cv2
 
     from privslam_jax._shared import shared_dir
-    from privslam_jax.commands.argtypes import nonnegative_int, positive_int
+    from privslam_jax.argtypes import nonnegative_int, positive_int
     from privslam_jax.data.images import read_rgb8, write_image_file
     from privslam_jax.data.yolo import link_mixed_split, write_yolo_labels
     from privslam_jax.detect.temporal import box_flow, dense_flow, flow_grey

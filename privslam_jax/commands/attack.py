@@ -11,7 +11,7 @@ import argparse
 import time
 from pathlib import Path
 
-from privslam_jax.commands.argtypes import nonnegative_int
+from privslam_jax.argtypes import nonnegative_int
 
 __all__ = ["add_parser", "run"]
 

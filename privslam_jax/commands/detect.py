@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from privslam_jax.commands.argtypes import multiple_of_32, unit_interval
+from privslam_jax.argtypes import multiple_of_32, unit_interval
 
 __all__ = ["add_parser", "run", "list_images", "EMBEDDED_WEIGHTS", "EMBEDDED_REAL_WEIGHTS"]
 

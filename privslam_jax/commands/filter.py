@@ -39,7 +39,7 @@ import argparse
 import json
 from pathlib import Path
 
-from privslam_jax.commands.argtypes import nonnegative_int, unit_interval
+from privslam_jax.argtypes import nonnegative_int, unit_interval
 from privslam_jax.inpaint.sequence import filter_sequence
 
 __all__ = ["add_parser", "run"]

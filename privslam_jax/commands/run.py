@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from privslam_jax.commands.argtypes import nonnegative_int, positive_int, unit_interval
+from privslam_jax.argtypes import nonnegative_int, positive_int, unit_interval
 
 __all__ = ["add_parser", "run"]
 

@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from privslam_jax.commands.argtypes import nonnegative_int, positive_int
+from privslam_jax.argtypes import nonnegative_int, positive_int
 from privslam_jax.slam.outputs import (
     load_sequence_frames,
     masked_regions,

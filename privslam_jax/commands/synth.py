@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from privslam_jax.commands.argtypes import nonnegative_int
+from privslam_jax.argtypes import nonnegative_int
 from privslam_jax.data.kitti_write import summarize_sequence, write_kitti_sequence
 
 __all__ = ["add_parser", "run"]

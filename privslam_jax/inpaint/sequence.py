@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from privslam_jax.data.files import write_atomic
 from privslam_jax.data.images import write_image_file
-from privslam_jax.runs import claim_run_folder, complete_run_folder
+from privslam_jax.runs import check_run_folder, claim_run_folder, complete_run_folder
 
 __all__ = ["RECALL_WARNING_BELOW", "check_detector_domain", "filter_sequence"]
 
@@ -182,10 +182,8 @@ def filter_sequence(
     if out_dir.resolve() == seq.path.resolve():
         raise ValueError("--out must differ from the input sequence's root (it would overwrite the originals)")
     poses_out = out / "poses" / f"{seq.name}.txt"
-    manifest = claim_run_folder(out_dir, "filter", {
-        "sequence": str(sequence), "method": method, "masks": masks_source, "detector": detector_path,
-        "model": model_path, "dilation": dilation, "seed": seed, "conf": conf, "propagate": propagate, "tta": tta,
-        "allow_domain_mismatch": allow_domain_mismatch}, overwrite, (poses_out,) if kitti else ())
+    companions = (poses_out,) if kitti else ()
+    check_run_folder(out_dir, overwrite, companions)  # refuse now; claim once the frames passed their checks
     stems = [p.stem for p in seq.image_paths]
     if kitti:
         grey_input = seq.left_dir.name in ("image_0", "image_1")
@@ -220,6 +218,10 @@ def filter_sequence(
                                      "propagated": counts[:, 2].tolist()}
         report["frames_without_masks"] = int((counts.sum(1) == 0).sum())
 
+    manifest = claim_run_folder(out_dir, "filter", {
+        "sequence": str(sequence), "method": method, "masks": masks_source, "detector": detector_path,
+        "model": model_path, "dilation": dilation, "seed": seed, "conf": conf, "propagate": propagate, "tta": tta,
+        "allow_domain_mismatch": allow_domain_mismatch}, overwrite, companions)
     for _, d in folders:
         d.mkdir(parents=True, exist_ok=True)
     (out_dir / "masks").mkdir(exist_ok=True)
