@@ -1,31 +1,41 @@
 """The privacy-preserving edge-assisted SLAM pipeline, composed from the stages (DESIGN §1).
 
-Each stage is a plain function of the previous stage's files, so every intermediate result is on
-disk under the run folder and can be inspected or fed to the matching ``privslam`` command:
+Each stage is a public function that returns a frozen dataclass (or plain arrays), so a notebook
+can call the stages one by one and get typed values back; :func:`run_pipeline` chains them and
+returns a :class:`PipelineReport`.  Files are a sink: :func:`run_pipeline` writes every stage's
+files under its output folder, so each intermediate result can be inspected or fed to the
+matching ``privslam`` command, while the in-memory stages (:func:`slam_stage` without ``out``,
+:func:`privacy_stage`) write nothing.
 
-1. **data** – render the synthetic street world into a KITTI-layout sequence
-   (:func:`privslam_jax.data.kitti_write.write_kitti_sequence`) → ``OUT/original``, or read the
-   KITTI-layout folder ``config.sequence`` as it is (never written).
-2. **privacy filter** (client side) – detect the privacy objects in the left images and remove
-   them (:func:`privslam_jax.inpaint.sequence.filter_sequence`, a leak-free fill) → ``OUT/filtered``.
+1. **data** (:func:`data_stage` → :class:`DataStage`) – render the synthetic street world into a
+   KITTI-layout sequence (:func:`privslam_jax.data.kitti_write.write_kitti_sequence`) →
+   ``OUT/original``, or read the KITTI-layout folder ``config.sequence`` as it is (never written).
+2. **privacy filter** (client side; :func:`filter_stage` → :class:`FilterStage`) – detect the
+   privacy objects in the left images and remove them
+   (:func:`privslam_jax.inpaint.sequence.filter_sequence`, a leak-free fill) → ``OUT/filtered``.
+   This stage exists only folder to folder today: it reads a sequence folder and writes one.
    ``masks="detect"`` uses the embedded detector made for the frames (or ``detector``),
    ``masks="gt"`` the renderer's instance masks. Where ground-truth instance masks exist (synthetic
    frames) the report also says how much of each object the filter missed (:func:`mask_leak`): a
    detector miss is a privacy leak that no fill can repair.
-3. **SLAM** (edge-server side) – monocular (or stereo) SLAM on the original and on the filtered
-   frames (:func:`privslam_jax.slam.run_slam`) → ``OUT/slam_original``, ``OUT/slam_filtered`` with
-   trajectories, maps and, with ground-truth poses, ATE/RPE.
-4. **map privacy** – lift the filtered run's map to a random line cloud (OS-entropy key unless
-   ``lift_seed`` is given) and attack it with Line2Point
-   (:func:`privslam_jax.attacks.line2point`); the monocular map is first brought to metres by the
-   Sim(3) alignment of its trajectory to the ground truth (SE(3) for stereo; without ground truth
-   it stays in SLAM units); point-recovery metrics next to the no-attack
-   baseline (:mod:`privslam_jax.metrics.privacy`) → ``OUT/lines.ply`` (what the server would
-   publish), ``OUT/recovered.ply`` (the attack), ``OUT/map_metric.ply`` (the map in metres, for
+3. **SLAM** (edge-server side; :func:`slam_stage` → :class:`SlamStage`) – monocular (or stereo)
+   SLAM on frames in memory (:func:`privslam_jax.slam.system.run_slam`), with its metrics (ATE/RPE
+   with ground-truth poses) and the in-memory ``SlamResult``; :func:`run_pipeline` runs it on the
+   original and on the filtered frames and writes ``OUT/slam_original``, ``OUT/slam_filtered``
+   (trajectories, maps, ``metrics.json``, plots).
+4. **map privacy** (:func:`map_to_ground_truth`, :func:`privacy_stage` → :class:`PrivacyStage`) –
+   the monocular map is first brought to metres by the Sim(3) alignment of its trajectory to the
+   ground truth (SE(3) for stereo; without ground truth it stays in SLAM units); the filtered run's
+   map is lifted to a random line cloud (OS-entropy key unless ``lift_seed`` is given) and attacked
+   with Line2Point (:func:`privslam_jax.attacks.line2point`); point-recovery metrics next to the
+   no-attack baseline (:mod:`privslam_jax.metrics.privacy`).  :func:`run_pipeline` then writes
+   (:func:`write_privacy_outputs`) ``OUT/lines.ply`` (what the server would publish),
+   ``OUT/recovered.ply`` (the attack) and ``OUT/map_metric.ply`` (the map in metres, for
    evaluation only).
 
-``privslam run`` then writes ``report.md`` / ``report.html`` (:func:`privslam_jax.report.write_report`)
-and ``report.json``; the folder's ``manifest.json`` says ``"complete": true`` only after all of it
+``privslam run`` prints :attr:`PipelineReport.summary`, writes ``report.md`` / ``report.html``
+(:func:`privslam_jax.report.write_report`) and ``report.json`` (:meth:`PipelineReport.to_json_dict`);
+the folder's ``manifest.json`` says ``"complete": true`` only after all of it
 (:mod:`privslam_jax.runs`).
 """
 
@@ -34,12 +44,21 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
+from jaxtyping import ArrayLike
 
-__all__ = ["PipelineConfig", "run_pipeline", "mask_leak"]
+from privslam_jax.types import Camera, LineCloud
+
+__all__ = [
+    "PipelineConfig", "PipelineReport", "DataStage", "FilterStage", "SlamStage", "PrivacyStage",
+    "data_stage", "filter_stage", "slam_stage", "map_to_ground_truth", "privacy_stage", "write_privacy_outputs",
+    "run_pipeline", "mask_leak",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,39 +101,462 @@ class PipelineConfig:
     """Fixed lift seed (experiments only); ``None`` draws the key from OS entropy."""
 
 
-def _slam(seq_dir: Path, out: Path, mode: str, progress: bool) -> tuple[dict[str, Any], Any]:
-    from privslam_jax.slam.outputs import load_sequence_frames, write_outputs
+
+
+def _check_config(config: PipelineConfig) -> None:
+    if config.masks not in ("detect", "gt"):
+        raise ValueError(f"masks must be 'detect' or 'gt', got {config.masks!r}")
+    if config.mode not in ("mono", "stereo"):
+        raise ValueError(f"mode must be 'mono' or 'stereo', got {config.mode!r} (rgbd is not offered: the depth maps "
+                         "show the hidden objects' shapes, and the privacy filter does not remove them)")
+    if config.attack and not config.slam:
+        raise ValueError("attack needs slam (the attacked map is the SLAM map)")
+
+
+def _fmt(m: dict[str, Any], key: str) -> str:
+    v = m.get(key)
+    return "n/a" if v is None else f"{v:.3f}"
+
+
+# --------------------------------------------------------------------------------------------
+# Stage values
+
+
+@dataclasses.dataclass(frozen=True)
+class DataStage:
+    """The input sequence (stage 1): where it is, what it holds, its ground truth."""
+
+    sequence: Path
+    """The KITTI-layout sequence folder the later stages read."""
+    synthetic: bool
+    """Rendered by the synthetic world (``background/`` present: ground-truth instance masks)."""
+    stats: dict[str, Any]
+    """:func:`privslam_jax.data.kitti_write.sequence_stats` of the sequence (JSON-able)."""
+    description: str
+    """Printable description (several lines), the start of :attr:`PipelineReport.summary`."""
+    gt_poses: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    """``(N, 4, 4)`` ground-truth ``T_w_c`` of every frame (``None``: no ground truth); in memory only."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterStage:
+    """What the privacy filter (stage 2) did; ``report.json``'s ``"filter"`` entry."""
+
+    method: str
+    """The filter method (any ``privslam filter --method``)."""
+    masks: str
+    """``"detect"`` (a detector's masks) or ``"gt"`` (the renderer's)."""
+    detector: str
+    """``"embedded"`` or the detector weights' path."""
+    sequence: Path
+    """The filtered KITTI-layout sequence folder."""
+    report: dict[str, Any]
+    """The filter's ``filter_report.json`` (detector, inpainter, settings, masks per frame)."""
+    leak: dict[str, Any] | None = None
+    """:func:`mask_leak` against the ground-truth instance masks (``None``: no ground-truth masks)."""
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The JSON-able dict of ``report.json``'s ``"filter"`` entry."""
+        d: dict[str, Any] = {"method": self.method, "masks": self.masks, "detector": self.detector,
+                             "sequence": str(self.sequence), "report": self.report}
+        if self.leak is not None:
+            d["leak"] = self.leak
+        return d
+
+    def summary(self) -> str:
+        """Printable lines: what was filtered, what leaked, and the detector's privacy warning if any."""
+        source = ("ground-truth masks" if self.masks == "gt" else
+                  f"detections of {'the embedded detector' if self.detector == 'embedded' else Path(self.detector).name}")
+        line = f"privacy filter: {self.method} on {source} -> {self.sequence}"
+        if self.leak is not None:
+            leak = self.leak
+            line += (f"; {leak['objects_left_visible']:.1f}% of {leak['objects']} objects left visible "
+                     f"({leak['pixels_left_visible']:.1f}% of their pixels)")
+        elif "masks_per_frame" in self.report:
+            per = self.report["masks_per_frame"]
+            line += (f"; {sum(per['detected']) + sum(per['promoted']) + sum(per['propagated'])} masks, "
+                     f"{self.report['frames_without_masks']} of {self.report['frames']} frames without any (no ground truth "
+                     "to say what was missed)")
+        lines = [line]
+        warning = self.report.get("detector", {}).get("privacy_warning")
+        if warning:
+            lines.append("PRIVACY WARNING: " + warning)
+        return "\n".join(lines)
+
+
+@dataclasses.dataclass(frozen=True)
+class SlamStage:
+    """One SLAM run (stage 3): its metrics and, in memory only, its result."""
+
+    metrics: dict[str, Any]
+    """The run's metrics as in its ``metrics.json`` (:func:`privslam_jax.slam.outputs.write_outputs`):
+    ``mode``, ``frames``, ``tracked``, ``map_points``, timings and, with ground truth, ATE/RPE."""
+    result: Any = dataclasses.field(default=None, repr=False, compare=False)
+    """The :class:`privslam_jax.slam.system.SlamResult` (trajectory, keyframes, map); in memory only."""
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The JSON-able metrics (``report.json``'s ``"slam"`` entry for this run)."""
+        return self.metrics
+
+    def summary(self, label: str, ground_truth: bool = True) -> str:
+        """One printable line for the run on ``label`` frames (``ground_truth``: the ATE/RPE are meaningful)."""
+        m = self.metrics
+        mode = m["mode"]
+        ate = "ate_rmse_sim3" if mode == "mono" else "ate_rmse_se3"
+        return (
+            f"SLAM ({mode}) on {label} frames: tracked {m['tracked']}/{m['frames']}, "
+            f"{m['map_points']} map points, "
+            + (f"{'Sim(3)' if mode == 'mono' else 'SE(3)'} ATE {_fmt(m, ate)} m, "
+               f"RPE (Sim(3)) {_fmt(m, 'rpe_trans_sim3')} m / {_fmt(m, 'rpe_rot')} deg per frame"
+               if ground_truth else "no ground truth: no ATE/RPE")
+            + (f" ({m['alignment_error']})" if "alignment_error" in m else "")
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class PrivacyStage:
+    """The map-privacy stage (4): the lift, the attack's and the no-attack baseline's metrics, or why it was skipped."""
+
+    units: str
+    """``"m"`` (the map aligned to the ground truth) or ``"SLAM units (…)"`` with the reason."""
+    map_points: int
+    """Number of map points lifted and attacked."""
+    lift: str | None = None
+    """How the lines were lifted (``"random"``, or with the fixed seed that makes it not secret)."""
+    line2point: dict[str, float] | None = None
+    """:func:`privslam_jax.metrics.privacy.point_recovery_metrics` of the Line2Point attack."""
+    no_attack_closest_point: dict[str, float] | None = None
+    """The same metrics for the no-attack baseline (each line's point closest to the origin)."""
+    skipped: str | None = None
+    """Why the stage did not run (``None``: it ran)."""
+    map_xyz: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    """``(N, 3)`` float64 map in :attr:`units` (evaluation only: the attacker's target); in memory only."""
+    lines: LineCloud | None = dataclasses.field(default=None, repr=False, compare=False)
+    """The published line cloud (line ``i`` lifted from ``map_xyz[i]``); in memory only."""
+    recovered: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    """``(N, 3)`` float64 points Line2Point recovered; in memory only."""
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The JSON-able dict of ``report.json``'s ``"privacy"`` entry."""
+        if self.skipped is not None:
+            return {"skipped": self.skipped, "units": self.units}
+        return {"map_points": self.map_points, "lift": self.lift, "line2point": self.line2point,
+                "no_attack_closest_point": self.no_attack_closest_point, "units": self.units}
+
+    def summary(self) -> str:
+        """One printable line."""
+        if self.skipped is not None:
+            return f"map privacy: skipped ({self.skipped})"
+        u = "m" if self.units == "m" else "(SLAM units)"
+        a, b = self.line2point, self.no_attack_closest_point
+        assert a is not None and b is not None
+        return (
+            f"map privacy ({self.map_points} points, {self.lift} lift): Line2Point recovers "
+            f"{a['within_0.5']:.1f}% within 0.5 {u} (median error {a['per_point_median']:.2f} {u}); "
+            f"no attack: {b['within_0.5']:.1f}% (median {b['per_point_median']:.2f} {u})"
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineReport:
+    """What :func:`run_pipeline` returns: every stage's value, the timings and the printable summary."""
+
+    sequence: Path
+    """The input KITTI-layout sequence folder (rendered, or ``config.sequence``)."""
+    synthetic: bool
+    """The input was rendered by the synthetic world."""
+    data: dict[str, Any]
+    """Numbers describing the input (:attr:`DataStage.stats`)."""
+    filter: FilterStage
+    """The privacy filter's stage."""
+    slam: dict[str, SlamStage] | None
+    """The SLAM runs by frames, ``"original"`` and ``"filtered"`` (``None``: ``config.slam`` off)."""
+    privacy: PrivacyStage | None
+    """The map-privacy stage (``None``: ``config.attack`` off)."""
+    timings_s: dict[str, float]
+    """Wall time per stage, seconds (``render``, ``filter``, ``slam_original``, ``slam_filtered``, ``lift_and_attack``)."""
+    summary: str
+    """The printable summary (several lines)."""
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The content of ``report.json``: every field but :attr:`summary` and the in-memory values, JSON-able."""
+        d: dict[str, Any] = {"sequence": str(self.sequence), "synthetic": self.synthetic, "data": self.data,
+                             "filter": self.filter.to_json_dict()}
+        if self.slam is not None:
+            d["slam"] = {label: stage.to_json_dict() for label, stage in self.slam.items()}
+        if self.privacy is not None:
+            d["privacy"] = self.privacy.to_json_dict()
+        d["timings_s"] = self.timings_s
+        return d
+
+
+# --------------------------------------------------------------------------------------------
+# Stages
+
+
+def data_stage(config: PipelineConfig, out: str | Path, progress: bool = False) -> DataStage:
+    """Stage 1: the input sequence as a KITTI-layout folder.
+
+    Without ``config.sequence`` the synthetic world is rendered (in memory) and written to
+    ``out/original`` (the filter stage reads folders); with it, ``config.sequence`` is opened as
+    it is and never written (``out`` must not contain it).
+    """
+    from privslam_jax.data.kitti import KittiSequence
+    from privslam_jax.data.kitti_write import sequence_stats, summarize_sequence, write_kitti_sequence
+
+    out = Path(out)
+    if config.sequence is None:
+        if config.frames < 1:
+            raise ValueError(f"frames must be at least 1, got {config.frames}")
+        from privslam_jax.data.synthetic import SynthConfig, make_sequence
+
+        seq = make_sequence(
+            SynthConfig(width=config.width, height=config.height, num_frames=config.frames, seed=config.seed, stereo=True)
+        )
+        records: list[Any] = []
+        seq_dir = write_kitti_sequence(seq, out / "original", config.name, progress=progress, collect=records)
+        return DataStage(
+            sequence=seq_dir, synthetic=True, stats=sequence_stats(seq, frames=records),
+            description=summarize_sequence(seq, frames=records, title=f"synthetic sequence {seq_dir}"),
+            gt_poses=np.asarray(seq.trajectory.as_matrices(), np.float64),
+        )
+    seq_dir = Path(config.sequence)
+    if out.resolve() == seq_dir.resolve() or seq_dir.resolve().is_relative_to(out.resolve()):
+        raise ValueError(f"--out {out} must not contain the input sequence {seq_dir}")
+    seq = KittiSequence(seq_dir, stereo=config.mode == "stereo")
+    lines = [summarize_sequence(seq, title=f"sequence {seq_dir}")]
+    if seq.poses is None:
+        lines.append("  no ground-truth poses: ATE/RPE are skipped and the map stays in SLAM units")
+    return DataStage(sequence=seq_dir, synthetic=seq.has_extra("background"), stats=sequence_stats(seq),
+                     description="\n".join(lines), gt_poses=seq.poses)
+
+
+def filter_stage(sequence: str | Path, out: str | Path, config: PipelineConfig, *, synthetic: bool = False,
+                 progress: bool = False) -> FilterStage:
+    """Stage 2: remove the privacy objects of the sequence folder ``sequence`` into ``out``.
+
+    Folder to folder: the filter exists only as
+    :func:`privslam_jax.inpaint.sequence.filter_sequence` (it reads the sequence's files and writes
+    the filtered sequence under ``out``), called with ``config``'s filter settings
+    (``filter_method``, ``masks``, ``detector``, ``inpainter``, ``conf``, ``propagate``, ``tta``).
+    With ``synthetic`` and a ``masks/`` folder of ground-truth instance masks, the leak is measured
+    (:func:`mask_leak`).
+    """
+    from privslam_jax.inpaint.sequence import filter_sequence
+
+    if config.masks not in ("detect", "gt"):
+        raise ValueError(f"masks must be 'detect' or 'gt', got {config.masks!r}")
+    sequence = Path(sequence)
+    detector = None if config.detector is None else Path(config.detector)
+    filtered_dir = filter_sequence(
+        sequence, Path(out), config.filter_method, masks_source=config.masks, detector_path=detector,
+        model_path=None if config.inpainter is None else Path(config.inpainter), progress=progress,
+        conf=config.conf, propagate=config.propagate, tta=config.tta,
+    )
+    report = json.loads((filtered_dir / "filter_report.json").read_text())
+    leak = mask_leak(sequence, filtered_dir) if (sequence / "masks").is_dir() and synthetic else None
+    return FilterStage(method=config.filter_method, masks=config.masks,
+                       detector="embedded" if detector is None else str(detector), sequence=filtered_dir,
+                       report=report, leak=leak)
+
+
+def slam_stage(
+    frames: Iterable[Any],
+    camera: Camera,
+    mode: str = "mono",
+    *,
+    timestamps: ArrayLike | None = None,
+    gt_poses: ArrayLike | None = None,
+    out: str | Path | None = None,
+    total: int | None = None,
+    progress: bool = False,
+) -> SlamStage:
+    """Stage 3: SLAM (:func:`privslam_jax.slam.system.run_slam`) on ``frames`` in memory.
+
+    Args:
+      frames: images (``mode="mono"``) or ``(left, right)`` pairs (``"stereo"``), as ``run_slam`` takes them.
+      camera: the (left) camera; ``camera.baseline`` for stereo.
+      mode: ``"mono"`` or ``"stereo"``.
+      timestamps: ``(N,)`` seconds of the frames (``None``: the frame indices).
+      gt_poses: ``(N, 4, 4)`` ground-truth ``T_w_c`` (``None``: no ATE/RPE).
+      out: write the run's files there (trajectory, keyframes, ``map.ply``, ``metrics.json``, plots;
+        :func:`privslam_jax.slam.outputs.write_outputs`); ``None``: nothing is written (the same
+        metrics from :func:`privslam_jax.slam.outputs.slam_metrics`).
+      total: number of frames, for the progress bar and an early check of ``gt_poses``.
+      progress: a progress bar.
+    """
+    from privslam_jax.slam.outputs import slam_metrics, write_outputs
     from privslam_jax.slam.system import SlamConfig, run_slam
 
-    seq, frames, n = load_sequence_frames(seq_dir, mode)
+    if mode not in ("mono", "stereo"):
+        raise ValueError(f"mode must be 'mono' or 'stereo', got {mode!r}")
+    gt = None if gt_poses is None else np.asarray(gt_poses, np.float64)
+    if gt is not None and (gt.ndim != 3 or gt.shape[1:] != (4, 4)):
+        raise ValueError(f"gt_poses must have shape (N, 4, 4), got {gt.shape}")
+    ts = None if timestamps is None else np.asarray(timestamps, np.float64)
+    if ts is not None and ts.ndim != 1:
+        raise ValueError(f"timestamps must have shape (N,), got {ts.shape}")
+    for name, a in (("gt_poses", gt), ("timestamps", ts)):
+        if a is not None and total is not None and len(a) < total:
+            raise ValueError(f"{name} has {len(a)} entries for {total} frames")
     t0 = time.perf_counter()
-    result = run_slam(frames, seq.camera, SlamConfig(mode=mode), timestamps=seq.timestamps[:n], progress=progress, total=n)
-    metrics = write_outputs(out, result, seq.timestamps[:n], seq.poses, mode, time.perf_counter() - t0)
-    return metrics, result
+    result = run_slam(frames, camera, SlamConfig(mode=mode), timestamps=ts, progress=progress, total=total)
+    wall = time.perf_counter() - t0
+    n = len(result.tracked)  # run_slam refuses an empty frame iterator
+    if ts is None:
+        ts = np.arange(n, dtype=np.float64)
+    for name, a in (("gt_poses", gt), ("timestamps", ts)):
+        if a is not None and len(a) < n:
+            raise ValueError(f"{name} has {len(a)} entries for {n} frames")
+    if out is not None:
+        metrics = write_outputs(Path(out), result, ts, gt, mode, wall)
+    else:
+        metrics = slam_metrics(result, ts, gt, mode, wall)
+    return SlamStage(metrics=metrics, result=result)
 
 
-def _privacy(map_xyz: np.ndarray, out: Path, seed: int | None, progress: bool) -> dict[str, Any]:
+def map_to_ground_truth(result: Any, gt_poses: ArrayLike | None, mode: str = "mono") -> tuple[np.ndarray, str]:
+    """The map of a SLAM result (``SlamResult``) in the ground-truth frame, and its units.
+
+    The map is moved by the Umeyama alignment of the SLAM trajectory to ``gt_poses`` (Sim(3) for
+    ``mode="mono"``, whose scale is arbitrary; SE(3) for stereo), so distances are metres:
+    ``(map_xyz, "m")``.  Without ground truth, or when the alignment is ill-posed, the map is
+    returned as it is with ``"SLAM units (…)"`` and the reason.
+    """
+    from privslam_jax.geometry.align import umeyama_np
+
+    if mode not in ("mono", "stereo"):
+        raise ValueError(f"mode must be 'mono' or 'stereo', got {mode!r}")
+    map_xyz = np.asarray(result.map.xyz, np.float64)
+    if gt_poses is None:
+        return map_xyz, "SLAM units (no ground truth)"
+    gt = np.asarray(gt_poses, np.float64)
+    if gt.ndim != 3 or gt.shape[1:] != (4, 4):
+        raise ValueError(f"gt_poses must have shape (N, 4, 4), got {gt.shape}")
+    est = np.asarray(result.trajectory.positions, np.float64)
+    n = est.shape[0]
+    try:
+        R, t, c = umeyama_np(est[:n], gt[:n, :3, 3], with_scale=mode == "mono")
+    except ValueError as err:
+        return map_xyz, f"SLAM units (alignment failed: {err})"
+    return c * map_xyz @ R.T + t, "m"
+
+
+def privacy_stage(
+    map_xyz: ArrayLike, key: jax.Array | None = None, *, progress: bool = False
+) -> tuple[LineCloud, np.ndarray, dict[str, dict[str, float]]]:
+    """Stage 4 in memory: lift ``map_xyz`` to a random line cloud and attack it; writes nothing.
+
+    Args:
+      map_xyz: ``(N, 3)`` map points, ``N >= 2``, finite.
+      key: the lift's ``jax.random`` key (:func:`privslam_jax.privacy.lift.fixed_key` for
+        experiments); ``None`` draws one from OS entropy.
+      progress: a progress bar for Line2Point.
+
+    Returns:
+      ``(lines, recovered, metrics)``: the published :class:`LineCloud` (line ``i`` through
+      ``map_xyz[i]``), the ``(N, 3)`` float64 points Line2Point recovers from it, and
+      ``{"line2point": …, "no_attack_closest_point": …}``, each
+      :func:`privslam_jax.metrics.privacy.point_recovery_metrics` against ``map_xyz``.
+      :func:`write_privacy_outputs` writes them as PLY files.
+    """
     from privslam_jax.attacks.line2point import line2point
-    from privslam_jax.data.ply import save_line_cloud, save_point_cloud
     from privslam_jax.metrics.privacy import baseline_points, point_recovery_metrics
-    from privslam_jax.privacy.lift import fixed_key, random_lift
-    from privslam_jax.types import PointCloud
-    import jax.numpy as jnp
+    from privslam_jax.privacy.lift import random_lift
 
-    if len(map_xyz) < 2:
-        return {"skipped": f"the map has {len(map_xyz)} points"}
-    save_point_cloud(out / "map_metric.ply", PointCloud(xyz=jnp.asarray(map_xyz)))  # evaluation only: the attacker's target
-    lines = random_lift(map_xyz, None if seed is None else fixed_key(seed))
-    save_line_cloud(out / "lines.ply", lines)
+    p = np.asarray(map_xyz)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"privacy_stage needs map points of shape (N, 3), got {tuple(p.shape)}")
+    if len(p) < 2:
+        raise ValueError(f"privacy_stage needs at least 2 map points (Line2Point), got {len(p)}")
+    if not np.issubdtype(p.dtype, np.floating) and not np.issubdtype(p.dtype, np.integer):
+        raise ValueError(f"map points must be numbers, got dtype {p.dtype}")
+    p = p.astype(np.float64)
+    if not np.all(np.isfinite(p)):
+        raise ValueError("map points contain NaN or inf")
+    lines = random_lift(p, key)
     recovered, _ = line2point(lines, progress=progress)
     recovered = np.asarray(recovered, np.float64)
-    save_point_cloud(out / "recovered.ply", PointCloud(xyz=jnp.asarray(recovered)))
-    return {
-        "map_points": int(len(map_xyz)),
-        "lift": "random" + ("" if seed is None else f" (fixed seed {seed}: not secret)"),
-        "line2point": point_recovery_metrics(map_xyz, recovered),
-        "no_attack_closest_point": point_recovery_metrics(map_xyz, baseline_points(lines, "closest")),
+    metrics = {
+        "line2point": point_recovery_metrics(p, recovered),
+        "no_attack_closest_point": point_recovery_metrics(p, baseline_points(lines, "closest")),
     }
+    return lines, recovered, metrics
+
+
+def write_privacy_outputs(out: str | Path, map_xyz: ArrayLike, lines: LineCloud, recovered: ArrayLike) -> None:
+    """Write ``out/map_metric.ply`` (evaluation only), ``out/lines.ply`` (published) and ``out/recovered.ply`` (the attack)."""
+    import jax.numpy as jnp
+
+    from privslam_jax.data.ply import save_line_cloud, save_point_cloud
+    from privslam_jax.types import PointCloud
+
+    out = Path(out)
+    save_point_cloud(out / "map_metric.ply", PointCloud(xyz=jnp.asarray(np.asarray(map_xyz, np.float64))))
+    save_line_cloud(out / "lines.ply", lines)
+    save_point_cloud(out / "recovered.ply", PointCloud(xyz=jnp.asarray(np.asarray(recovered, np.float64))))
+
+
+# --------------------------------------------------------------------------------------------
+# The whole pipeline
+
+
+def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True) -> PipelineReport:
+    """Run every stage, writing their files under ``out``; returns the typed :class:`PipelineReport`.
+
+    Without ``config.sequence`` the synthetic default is rendered first; with it, the stages run
+    on that KITTI-layout sequence as it is (ground-truth poses used when present, the metrics that
+    need them skipped with a note when not; object-leak figures only where ground-truth masks exist).
+    """
+    from privslam_jax.privacy.lift import fixed_key
+    from privslam_jax.slam.outputs import load_sequence_frames
+
+    _check_config(config)
+    out = Path(out)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    data = data_stage(config, out, progress)
+    if config.sequence is None:
+        timings["render"] = time.perf_counter() - t0
+    gt_poses = data.gt_poses
+    lines = [data.description]
+
+    t0 = time.perf_counter()
+    filt = filter_stage(data.sequence, out / "filtered", config, synthetic=data.synthetic, progress=progress)
+    timings["filter"] = time.perf_counter() - t0
+    lines.append(filt.summary())
+
+    slam: dict[str, SlamStage] | None = None
+    privacy: PrivacyStage | None = None
+    if config.slam:
+        slam = {}
+        for label, path in (("original", data.sequence), ("filtered", filt.sequence)):
+            t0 = time.perf_counter()
+            seq, frames, n = load_sequence_frames(path, config.mode)
+            slam[label] = slam_stage(frames, seq.camera, config.mode, timestamps=seq.timestamps[:n], gt_poses=seq.poses,
+                                     out=out / f"slam_{label}", total=n, progress=progress)
+            timings[f"slam_{label}"] = time.perf_counter() - t0
+            lines.append(slam[label].summary(label, ground_truth=gt_poses is not None))
+        if config.attack:
+            t0 = time.perf_counter()
+            map_xyz, units = map_to_ground_truth(slam["filtered"].result, gt_poses, config.mode)
+            if len(map_xyz) < 2:
+                privacy = PrivacyStage(units=units, map_points=len(map_xyz), skipped=f"the map has {len(map_xyz)} points")
+            else:
+                seed = config.lift_seed
+                cloud, recovered, metrics = privacy_stage(map_xyz, None if seed is None else fixed_key(seed),
+                                                          progress=progress)
+                write_privacy_outputs(out, map_xyz, cloud, recovered)
+                privacy = PrivacyStage(
+                    units=units, map_points=len(map_xyz),
+                    lift="random" + ("" if seed is None else f" (fixed seed {seed}: not secret)"),
+                    line2point=metrics["line2point"], no_attack_closest_point=metrics["no_attack_closest_point"],
+                    map_xyz=map_xyz, lines=cloud, recovered=recovered,
+                )
+            timings["lift_and_attack"] = time.perf_counter() - t0
+            lines.append(privacy.summary())
+    return PipelineReport(sequence=data.sequence, synthetic=data.synthetic, data=data.stats, filter=filt, slam=slam,
+                          privacy=privacy, timings_s=timings, summary="\n".join(lines))
 
 
 def mask_leak(original: Path, filtered: Path, min_pixels: int = 50, visible: float = 0.5) -> dict[str, Any]:
@@ -148,137 +590,3 @@ def mask_leak(original: Path, filtered: Path, min_pixels: int = 50, visible: flo
         "pixels_left_visible": 100.0 * px_left / max(px, 1),
         "rule": f"instances of >= {min_pixels} px; 'left visible' = more than {visible:.0%} of its pixels unmasked",
     }
-
-
-def _fmt(m: dict[str, Any], key: str) -> str:
-    v = m.get(key)
-    return "n/a" if v is None else f"{v:.3f}"
-
-
-def _trajectory_to_gt(result: Any, gt: np.ndarray, n: int, scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
-    """Umeyama alignment (``scale``: Sim(3)) of the SLAM trajectory to the ground truth: ``(R, t, c)``."""
-    from privslam_jax.geometry.align import umeyama_np
-
-    est = np.asarray(result.trajectory.positions, np.float64)[:n]
-    return umeyama_np(est, np.asarray(gt, np.float64)[:n, :3, 3], with_scale=scale)
-
-
-def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True) -> dict[str, Any]:
-    """Run every stage; returns a JSON-able report with a ``summary`` text and per-stage ``timings_s``.
-
-    Without ``config.sequence`` the synthetic default is rendered first; with it, the stages run
-    on that KITTI-layout sequence as it is (ground-truth poses used when present, the metrics that
-    need them skipped with a note when not; object-leak figures only where ground-truth masks exist).
-    """
-    from privslam_jax.data.kitti import KittiSequence
-    from privslam_jax.data.kitti_write import sequence_stats, summarize_sequence, write_kitti_sequence
-    from privslam_jax.inpaint.sequence import filter_sequence
-
-    if config.masks not in ("detect", "gt"):
-        raise ValueError(f"masks must be 'detect' or 'gt', got {config.masks!r}")
-    if config.mode not in ("mono", "stereo"):
-        raise ValueError(f"mode must be 'mono' or 'stereo', got {config.mode!r} (rgbd is not offered: the depth maps "
-                         "show the hidden objects' shapes, and the privacy filter does not remove them)")
-    if config.attack and not config.slam:
-        raise ValueError("attack needs slam (the attacked map is the SLAM map)")
-    out = Path(out)
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    if config.sequence is None:
-        if config.frames < 1:
-            raise ValueError(f"frames must be at least 1, got {config.frames}")
-        from privslam_jax.data.synthetic import SynthConfig, make_sequence
-
-        seq = make_sequence(
-            SynthConfig(width=config.width, height=config.height, num_frames=config.frames, seed=config.seed, stereo=True)
-        )
-        records: list[Any] = []
-        seq_dir = write_kitti_sequence(seq, out / "original", config.name, progress=progress, collect=records)
-        report: dict[str, Any] = {"sequence": str(seq_dir), "synthetic": True, "data": sequence_stats(seq, frames=records)}
-        lines = [summarize_sequence(seq, frames=records, title=f"synthetic sequence {seq_dir}")]
-        timings["render"] = time.perf_counter() - t0
-    else:
-        seq_dir = Path(config.sequence)
-        if out.resolve() == seq_dir.resolve() or seq_dir.resolve().is_relative_to(out.resolve()):
-            raise ValueError(f"--out {out} must not contain the input sequence {seq_dir}")
-        seq = KittiSequence(seq_dir, stereo=config.mode == "stereo")
-        report = {"sequence": str(seq_dir), "synthetic": seq.has_extra("background"), "data": sequence_stats(seq)}
-        lines = [summarize_sequence(seq, title=f"sequence {seq_dir}")]
-        if seq.poses is None:
-            lines.append("  no ground-truth poses: ATE/RPE are skipped and the map stays in SLAM units")
-    gt_poses = seq.poses if config.sequence is not None else np.asarray(seq.trajectory.as_matrices(), np.float64)
-
-    t0 = time.perf_counter()
-    detector = None if config.detector is None else Path(config.detector)
-    filtered_dir = filter_sequence(
-        seq_dir, out / "filtered", config.filter_method, masks_source=config.masks, detector_path=detector,
-        model_path=None if config.inpainter is None else Path(config.inpainter), progress=progress,
-        conf=config.conf, propagate=config.propagate, tta=config.tta,
-    )
-    timings["filter"] = time.perf_counter() - t0
-    freport = json.loads((filtered_dir / "filter_report.json").read_text())
-    source = "ground-truth masks" if config.masks == "gt" else f"detections of {'the embedded detector' if detector is None else detector.name}"
-    report["filter"] = {"method": config.filter_method, "masks": config.masks, "detector": "embedded" if detector is None else str(detector),
-                        "sequence": str(filtered_dir), "report": freport}
-    line = f"privacy filter: {config.filter_method} on {source} -> {filtered_dir}"
-    if (seq_dir / "masks").is_dir() and report["synthetic"]:  # ground-truth instance masks: measure the leak
-        leak = mask_leak(seq_dir, filtered_dir)
-        report["filter"]["leak"] = leak
-        line += (f"; {leak['objects_left_visible']:.1f}% of {leak['objects']} objects left visible "
-                 f"({leak['pixels_left_visible']:.1f}% of their pixels)")
-    elif "masks_per_frame" in freport:
-        per = freport["masks_per_frame"]
-        line += (f"; {sum(per['detected']) + sum(per['promoted']) + sum(per['propagated'])} masks, "
-                 f"{freport['frames_without_masks']} of {freport['frames']} frames without any (no ground truth "
-                 "to say what was missed)")
-    lines.append(line)
-    warning = freport.get("detector", {}).get("privacy_warning")
-    if warning:
-        lines.append("PRIVACY WARNING: " + warning)
-
-    if config.slam:
-        slam: dict[str, Any] = {}
-        for label, path in (("original", seq_dir), ("filtered", filtered_dir)):
-            t0 = time.perf_counter()
-            metrics, result = _slam(path, out / f"slam_{label}", config.mode, progress)
-            timings[f"slam_{label}"] = time.perf_counter() - t0
-            slam[label] = metrics
-            ate = "ate_rmse_sim3" if config.mode == "mono" else "ate_rmse_se3"
-            lines.append(
-                f"SLAM ({config.mode}) on {label} frames: tracked {metrics['tracked']}/{metrics['frames']}, "
-                f"{metrics['map_points']} map points, "
-                + (f"{'Sim(3)' if config.mode == 'mono' else 'SE(3)'} ATE {_fmt(metrics, ate)} m, "
-                   f"RPE (Sim(3)) {_fmt(metrics, 'rpe_trans_sim3')} m / {_fmt(metrics, 'rpe_rot')} deg per frame"
-                   if gt_poses is not None else "no ground truth: no ATE/RPE")
-                + (f" ({metrics['alignment_error']})" if "alignment_error" in metrics else "")
-            )
-        report["slam"] = slam
-        if config.attack:
-            t0 = time.perf_counter()
-            map_xyz = np.asarray(result.map.xyz, np.float64)
-            units = "SLAM units (no ground truth)"
-            if gt_poses is not None:
-                # Bring the map into metres (the ground-truth frame) with the alignment of its
-                # trajectory (Sim(3) for mono, whose scale is arbitrary), so distances are metres.
-                try:
-                    R, t, c = _trajectory_to_gt(result, gt_poses, metrics["frames"], scale=config.mode == "mono")
-                    map_xyz, units = c * map_xyz @ R.T + t, "m"
-                except ValueError as err:
-                    units = f"SLAM units (alignment failed: {err})"
-            priv = _privacy(map_xyz, out, config.lift_seed, progress)
-            priv["units"] = units
-            timings["lift_and_attack"] = time.perf_counter() - t0
-            report["privacy"] = priv
-            u = "m" if units == "m" else "(SLAM units)"
-            if "skipped" in priv:
-                lines.append(f"map privacy: skipped ({priv['skipped']})")
-            else:
-                a, b = priv["line2point"], priv["no_attack_closest_point"]
-                lines.append(
-                    f"map privacy ({priv['map_points']} points, {priv['lift']} lift): Line2Point recovers "
-                    f"{a['within_0.5']:.1f}% within 0.5 {u} (median error {a['per_point_median']:.2f} {u}); "
-                    f"no attack: {b['within_0.5']:.1f}% (median {b['per_point_median']:.2f} {u})"
-                )
-    report["timings_s"] = timings
-    report["summary"] = "\n".join(lines)
-    return report

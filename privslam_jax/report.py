@@ -1,7 +1,8 @@
 """The report a person reads first: ``report.md`` and a self-contained ``report.html`` for a run.
 
 :func:`write_report` turns the files of a :func:`privslam_jax.pipeline.run_pipeline` run folder
-and its report dict into figures (matplotlib, Agg) and two documents:
+and its typed :class:`~privslam_jax.pipeline.PipelineReport` into figures (matplotlib, Agg) and two
+documents:
 
 * a strip of original / mask / filtered frames with the filter's masks outlined and labelled;
 * the trajectories of SLAM on the original and on the filtered frames against the ground truth
@@ -27,6 +28,7 @@ import numpy as np
 
 from privslam_jax.data.files import write_atomic, write_figure
 from privslam_jax.data.kitti_write import COCO_NAMES
+from privslam_jax.pipeline import PipelineReport
 
 __all__ = ["markdown_table", "write_report"]
 
@@ -198,10 +200,10 @@ def _f(v: Any, digits: int = 3) -> str:
     return "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{digits}f}"
 
 
-def _tables(report: dict[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
+def _tables(report: PipelineReport) -> list[tuple[str, list[str], list[list[str]]]]:
     """``(title, header, rows)`` of the report's tables."""
     tables = []
-    slam = report.get("slam", {})
+    slam = {label: stage.metrics for label, stage in (report.slam or {}).items()}
     if slam:
         rows = []
         for label, m in slam.items():
@@ -214,14 +216,14 @@ def _tables(report: dict[str, Any]) -> list[tuple[str, list[str], list[list[str]
         tables.append(("SLAM accuracy (against the ground truth; evo semantics)",
                        ["SLAM on", "tracked frames", "map points", "ATE Sim(3) [m]", "ATE SE(3) [m]", "RPE Sim(3) [m/frame]",
                         "RPE [deg/frame]"], rows))
-    priv = report.get("privacy", {})
-    if "line2point" in priv:
-        u = "m" if priv.get("units") == "m" else "SLAM units"
-        rows = [[name, _f(priv[key]["within_0.5"], 1), _f(priv[key]["per_point_median"], 2)]
-                for name, key in (("Line2Point", "line2point"), ("no attack (closest point)", "no_attack_closest_point"))]
-        tables.append((f"map privacy: {priv['map_points']} points, {priv['lift']} lift",
+    priv = report.privacy
+    if priv is not None and priv.line2point is not None and priv.no_attack_closest_point is not None:
+        u = "m" if priv.units == "m" else "SLAM units"
+        rows = [[name, _f(m["within_0.5"], 1), _f(m["per_point_median"], 2)]
+                for name, m in (("Line2Point", priv.line2point), ("no attack (closest point)", priv.no_attack_closest_point))]
+        tables.append((f"map privacy: {priv.map_points} points, {priv.lift} lift",
                        ["attack", f"% within 0.5 {u}", f"median error [{u}]"], rows))
-    rows = [[k, f"{v:.1f} s"] for k, v in report.get("timings_s", {}).items()]
+    rows = [[k, f"{v:.1f} s"] for k, v in report.timings_s.items()]
     for label, m in slam.items():
         for k, v in m.get("median_ms", {}).items():
             rows.append([f"slam_{label}: {k} (median per frame)", f"{v:.1f} ms"])
@@ -230,24 +232,28 @@ def _tables(report: dict[str, Any]) -> list[tuple[str, list[str], list[list[str]
     return tables
 
 
-def write_report(out: str | Path, report: dict[str, Any]) -> tuple[Path, Path]:
-    """Write ``OUT/report.md``, ``OUT/report.html`` and ``OUT/report_files/*.png``; returns the two documents."""
+def write_report(out: str | Path, report: PipelineReport) -> tuple[Path, Path]:
+    """Write ``OUT/report.md``, ``OUT/report.html`` and ``OUT/report_files/*.png``; returns the two documents.
+
+    The figures are drawn from the stage files of the run folder ``out``, the tables and the
+    summary from ``report``.
+    """
     from privslam_jax.data.kitti import KittiSequence
 
     out = Path(out)
     files = out / "report_files"
-    original = Path(report["sequence"])
-    mode = next(iter(report.get("slam", {}).values()), {}).get("mode", "mono")
+    original = Path(report.sequence)
+    first = next(iter((report.slam or {}).values()), None)
+    mode = "mono" if first is None else first.metrics.get("mode", "mono")
     try:
         gt = KittiSequence(original).poses
     except (OSError, ValueError):
         gt = None
     figures = []
-    filt = report.get("filter", {}).get("sequence")
-    units = "m" if report.get("privacy", {}).get("units") == "m" else "SLAM units"
+    units = "m" if report.privacy is not None and report.privacy.units == "m" else "SLAM units"
     for title, make in (
         ("Frames: original with the filter's masks, the mask, the filtered frame",
-         lambda: _frame_strip(original, Path(filt), files / "frames.png") if filt else None),
+         lambda: _frame_strip(original, report.filter.sequence, files / "frames.png")),
         ("Trajectories", lambda: _trajectories(out, gt, mode, files / "trajectories.png")),
         ("Map and published line cloud (top view)", lambda: _map_and_lines(out, files / "map_lines.png")),
         ("Attack", lambda: _attack(out, files / "attack.png", units)),
@@ -256,7 +262,7 @@ def write_report(out: str | Path, report: dict[str, Any]) -> tuple[Path, Path]:
         if p is not None:
             figures.append((title, p))
     tables = _tables(report)
-    summary = report.get("summary", "")
+    summary = report.summary
 
     md = ["# privslam run report", "", "```", summary, "```", ""]
     for title, p in figures:

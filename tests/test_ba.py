@@ -16,11 +16,11 @@ from privslam_jax.slam.ba import (
     BAConfig,
     _bundle_adjust_jit,
     _jacobians,
-    _sym3_inverse,
     analyze,
     ba_bucket,
     bundle_adjust,
 )
+from privslam_jax.solvers.schur import sym3_inverse as _sym3_inverse
 from privslam_jax.types import Camera
 
 CAM = Camera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)

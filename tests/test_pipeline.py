@@ -1,20 +1,41 @@
-"""The main job (``privslam run``) end to end on a short synthetic sequence, checked from its files."""
+"""The main job (``privslam run``) end to end on a short synthetic sequence, checked from its files;
+the typed report and the pipeline's stages called one by one in memory."""
 
+import contextlib
+import io
 import json
 
 import numpy as np
 import pytest
 
+from privslam_jax import pipeline
 from privslam_jax.cli import main
 from privslam_jax.data.images import read_image
 from privslam_jax.data.ply import load_line_cloud, load_point_cloud
 from privslam_jax.data.trajectory_io import read_tum_matrices
 
 
-def test_run_writes_every_stage_and_consistent_report(tmp_path, capsys):
-    out = tmp_path / "run"
-    assert main(["run", "--out", str(out), "--frames", "14", "--masks", "gt", "--lift-seed", "3", "--quiet"]) == 0
-    printed = capsys.readouterr().out
+@pytest.fixture(scope="module")
+def gt_run(tmp_path_factory):
+    """One ``privslam run`` (14 synthetic frames, ground-truth masks, lift seed 3), shared by the tests
+    of this module: ``(out folder, printed text, the PipelineReport run_pipeline returned)``."""
+    out = tmp_path_factory.mktemp("gt_run") / "run"
+    typed = []
+
+    def keep(*args, **kwargs):
+        typed.append(run_pipeline(*args, **kwargs))
+        return typed[-1]
+
+    run_pipeline = pipeline.run_pipeline
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(io.StringIO()) as printed:
+        mp.setattr(pipeline, "run_pipeline", keep)  # the command imports it from the module at call time
+        assert main(["run", "--out", str(out), "--frames", "14", "--masks", "gt", "--lift-seed", "3", "--quiet"]) == 0
+    assert len(typed) == 1
+    return out, printed.getvalue(), typed[0]
+
+
+def test_run_writes_every_stage_and_consistent_report(gt_run):
+    out, printed, _ = gt_run
     report = json.loads((out / "report.json").read_text())
     orig = out / "original" / "sequences" / "synth"
     filt = out / "filtered" / "sequences" / "synth"
@@ -46,6 +67,124 @@ def test_run_writes_every_stage_and_consistent_report(tmp_path, capsys):
     # ground-truth masks (dilated) hide every object entirely
     assert report["filter"]["leak"]["objects"] > 0
     assert report["filter"]["leak"]["objects_left_visible"] == 0.0
+
+
+def test_typed_report_is_what_the_command_printed_and_wrote(gt_run):
+    """``run_pipeline`` returns a frozen PipelineReport; its ``to_json_dict()`` is ``report.json``, its summary the printed text."""
+    import dataclasses
+
+    from privslam_jax.types import LineCloud
+
+    out, printed, report = gt_run
+    assert isinstance(report, pipeline.PipelineReport)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        report.summary = ""  # type: ignore[misc]
+    d = report.to_json_dict()
+    assert json.loads(json.dumps(d)) == json.loads((out / "report.json").read_text())
+    assert list(d) == ["sequence", "synthetic", "data", "filter", "slam", "privacy", "timings_s"]
+    assert report.summary in printed and printed.startswith(report.summary)
+    # the typed fields agree with the files, and the in-memory values are there but not in the JSON
+    assert report.filter.sequence == out / "filtered" / "sequences" / "synth"
+    for label in ("original", "filtered"):
+        stage = report.slam[label]
+        assert stage.metrics == json.loads((out / f"slam_{label}" / "metrics.json").read_text())
+        assert len(stage.result.tracked) == stage.metrics["frames"] == 14
+    priv = report.privacy
+    assert priv.skipped is None and priv.units == "m" and isinstance(priv.lines, LineCloud)
+    assert priv.map_points == len(priv.map_xyz) == len(priv.recovered) == len(priv.lines)
+    np.testing.assert_allclose(np.asarray(load_point_cloud(out / "recovered.ply").xyz), priv.recovered, rtol=1e-5, atol=1e-4)
+    assert set(d["privacy"]) == {"map_points", "lift", "line2point", "no_attack_closest_point", "units"}
+    assert d["slam"]["filtered"] is report.slam["filtered"].metrics  # the metrics only, not the SlamResult
+
+
+def test_privacy_stage_in_memory_equals_a_numpy_recomputation_and_writes_nothing(tmp_path, monkeypatch):
+    from privslam_jax.privacy.lift import fixed_key
+
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(0)
+    p = np.concatenate([rng.uniform([-10, -2, 0], [10, 2, 40], (150, 3)),
+                        rng.normal([0, 0, 20], 0.3, (50, 3))])  # a box and a dense cluster
+    lines, r, metrics = pipeline.privacy_stage(p, fixed_key(7))
+    assert list(tmp_path.iterdir()) == []  # no folder given: nothing written
+    d = np.asarray(lines.directions, np.float64)
+    m = np.asarray(lines.moments, np.float64)
+    assert r.shape == p.shape and r.dtype == np.float64
+    np.testing.assert_allclose(np.cross(p, d), m, atol=1e-9)  # line i goes through p_i
+    assert np.abs(np.cross(r, d) - m).max() < 1e-3 * np.abs(r).max()  # r_i lies on line i
+    closest = np.cross(d / np.linalg.norm(d, axis=1, keepdims=True), m)
+    for key, q in (("line2point", r), ("no_attack_closest_point", closest)):
+        e = np.linalg.norm(q - p, axis=1)
+        dist = np.linalg.norm(p[:, None, :] - q[None, :, :], axis=2)  # all pairs, no kd-tree
+        got = metrics[key]
+        assert got["per_point_median"] == pytest.approx(np.median(e), rel=1e-9)
+        assert got["per_point_mean"] == pytest.approx(e.mean(), rel=1e-9)
+        for tau in (0.1, 0.5, 1.0):
+            assert got[f"within_{tau}"] == pytest.approx(100 * np.mean(e < tau), abs=1e-9)
+        assert got["nn_mean"] == pytest.approx(dist.min(1).mean(), rel=1e-9)
+        assert got["chamfer"] == pytest.approx(0.5 * (dist.min(1).mean() + dist.min(0).mean()), rel=1e-9)
+    assert metrics["line2point"]["within_0.5"] > metrics["no_attack_closest_point"]["within_0.5"]
+    # the same key gives the same lines and attack: the stage is a function of its inputs
+    lines2, _, metrics2 = pipeline.privacy_stage(p, fixed_key(7))
+    np.testing.assert_array_equal(np.asarray(lines2.directions), np.asarray(lines.directions))
+    assert metrics2 == metrics
+    # the optional sink writes the three clouds
+    pipeline.write_privacy_outputs(tmp_path / "o", p, lines, r)
+    assert sorted(f.name for f in (tmp_path / "o").iterdir()) == ["lines.ply", "map_metric.ply", "recovered.ply"]
+
+
+@pytest.mark.parametrize(
+    "points, match",
+    [
+        (np.zeros((0, 3)), "at least 2 map points"),
+        (np.zeros((1, 3)), "at least 2 map points"),
+        (np.zeros((5, 2)), r"shape \(N, 3\)"),
+        (np.zeros((2, 3, 1)), r"shape \(N, 3\)"),
+        (np.array([[0.0, 0, 0], [1, np.nan, 0]]), "NaN or inf"),
+    ],
+)
+def test_privacy_stage_refuses_bad_maps(points, match, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match=match):
+        pipeline.privacy_stage(points)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stages_refuse_bad_input(gt_run):
+    from privslam_jax.types import Camera
+
+    _, _, report = gt_run
+    cam = Camera(fx=100.0, fy=100.0, cx=32.0, cy=24.0, width=64, height=48)
+    frames = [np.zeros((48, 64), np.uint8)] * 3
+    with pytest.raises(ValueError, match="mode must be 'mono' or 'stereo'"):
+        pipeline.slam_stage(frames, cam, "rgbd")
+    with pytest.raises(ValueError, match=r"gt_poses must have shape \(N, 4, 4\)"):
+        pipeline.slam_stage(frames, cam, gt_poses=np.zeros((3, 3, 4)))
+    with pytest.raises(ValueError, match="gt_poses has 2 entries for 3 frames"):
+        pipeline.slam_stage(frames, cam, gt_poses=np.tile(np.eye(4), (2, 1, 1)), total=3)
+    with pytest.raises(ValueError, match=r"timestamps must have shape \(N,\)"):
+        pipeline.slam_stage(frames, cam, timestamps=np.zeros((3, 1)))
+    with pytest.raises(ValueError, match="no frames"):
+        pipeline.slam_stage([], cam)
+    result = report.slam["filtered"].result
+    with pytest.raises(ValueError, match=r"gt_poses must have shape \(N, 4, 4\)"):
+        pipeline.map_to_ground_truth(result, np.zeros((14, 3, 4)))
+    xyz, units = pipeline.map_to_ground_truth(result, None)
+    assert units == "SLAM units (no ground truth)" and np.array_equal(xyz, np.asarray(result.map.xyz, np.float64))
+    xyz, units = pipeline.map_to_ground_truth(result, _synthetic_gt(14))  # the ground truth the run used
+    assert units == "m" and np.array_equal(xyz, report.privacy.map_xyz)
+    with pytest.raises(ValueError, match="masks must be 'detect' or 'gt'"):
+        pipeline.filter_stage(report.sequence, "unused", pipeline.PipelineConfig(masks="bogus"))
+    with pytest.raises(ValueError, match="attack needs slam"):
+        pipeline.run_pipeline(pipeline.PipelineConfig(slam=False), "unused", progress=False)
+
+
+def _synthetic_gt(frames):
+    """The ground-truth poses the pipeline uses for the default synthetic sequence of ``frames`` frames."""
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence
+
+    c = pipeline.PipelineConfig()
+    seq = make_sequence(SynthConfig(width=c.width, height=c.height, num_frames=frames, seed=c.seed, stereo=True))
+    return np.asarray(seq.trajectory.as_matrices(), np.float64)
 
 
 def test_mask_leak_counts_objects_and_pixels_left_unmasked(tmp_path):

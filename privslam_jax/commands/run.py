@@ -64,10 +64,10 @@ def run(args: argparse.Namespace) -> int:
         slam=not args.no_slam, attack=not args.no_slam,
     )
     report = run_pipeline(config, args.out, progress=not args.quiet)
-    print(report["summary"])
+    print(report.summary)
     md, page = write_report(args.out, report)
     print(f"read first: {page} (self-contained) or {md}")
     path = Path(args.out) / "report.json"
-    write_atomic(path, json.dumps({k: v for k, v in report.items() if k != "summary"}, indent=2) + "\n")
+    write_atomic(path, json.dumps(report.to_json_dict(), indent=2) + "\n")
     print(f"report: {path}")
     return 0

@@ -14,33 +14,19 @@ right-image ``u_r`` of a rectified pair (RGB-D: a virtual one, ``u_r = u − bf/
 ``√5.991``/5.991.  Pass ``obs_u_right`` with ``u_r < 0`` marking monocular observations (whose third
 row is zero); without it the program has 2-row residuals (cheaper, e.g. the BAL benchmark).
 
-Normal equations.  Cameras are updated on the left, ``T_c ← exp(ξ_c) T_c`` (jaxlie tangent
-``(ρ, ω)``), points additively.  With the IRLS weights ``w_o = ρ'(s_o) Ω_o`` and the analytic
-Jacobians ``A_o = ∂r_o/∂ξ_c`` (2×6 / 3×6), ``B_o = ∂r_o/∂X_p`` (2×3 / 3×3)
-(:func:`privslam_jax.geometry.projection.reprojection_jacobians`):
+Solver.  Cameras are updated on the left, ``T_c ← exp(ξ_c) T_c`` (jaxlie tangent ``(ρ, ω)``), points
+additively.  With the IRLS weights ``w_o = ρ'(s_o) Ω_o`` and the analytic Jacobians
+``A_o = ∂r_o/∂ξ_c`` (2×6 / 3×6), ``B_o = ∂r_o/∂X_p`` (2×3 / 3×3) the blocks of the normal equations
+are solved by the Schur complement on the points (:mod:`privslam_jax.solvers.schur`) inside the
+shared Levenberg–Marquardt loop (:mod:`privslam_jax.solvers.lm`: Nielsen's damping; stopping as
+Ceres: relative cost decrease ``< function_tolerance``, ``‖Δx‖ ≤ parameter_tolerance·(‖x‖ +
+parameter_tolerance)``, or ``cost ≤ target_cost``; why it stopped is ``BAResult.summary``).
 
-    [ U   W ] [ξ]   [−g_c]     U = blockdiag_c Σ_{o∈c} w A_oᵀA_o  (6×6 blocks)
-    [ Wᵀ  V ] [δ] = [−g_p],    V = blockdiag_p Σ_{o∈p} w B_oᵀB_o  (3×3 blocks),  W_o = w A_oᵀB_o,
-
-damped as ``U + λ diag(U)``, ``V + λ diag(V)`` (Marquardt; the diagonal clamped to [1e-6, 1e32] as in
-Ceres).  Eliminating the points (Triggs et al. 2000, §6.1; Agarwal et al., *Bundle Adjustment in the
-Large*, ECCV 2010, §3) gives the reduced camera system
-
-    S ξ = −g_c + Σ_o Y_o g_{p(o)},     S = U − Σ_p Σ_{o,o'∈p} Y_o W_{o'}ᵀ,    Y_o = W_o V_{p(o)}⁻¹,
-
-then ``δ_p = V_p⁻¹(−g_p − Σ_{o∈p} W_oᵀ ξ_{c(o)})``.  The 3×3 blocks ``V_p`` are inverted in batch in
-closed form (adjugate, after Jacobi scaling); ``S`` (``6M × 6M``, dense) is factorised by Cholesky.
-Fixed cameras get ``ξ_c = 0`` (identity rows in ``S``).
-
-Schur assembly.  ``S``'s off-diagonal part is a sum over the pairs ``(o, o')`` of observations of one
-point.  The pairs are built on the host (:func:`analyze`), sorted by camera pair and padded per camera
-pair to a multiple of ``chunk`` so that the jitted code sums chunks with a dense reduction and runs
-the (slow on CPU) scatter ``segment_sum`` only over ``Q/chunk`` chunk sums.  Only ``o < o'`` is
-stored; ``S_off = X + Xᵀ``.
-
-λ follows Nielsen's rule as in :mod:`privslam_jax.slam.refine`; stopping as Ceres: relative cost
-decrease ``< function_tolerance``, ``‖Δx‖ ≤ parameter_tolerance·(‖x‖ + parameter_tolerance)``, or
-``cost ≤ target_cost``.
+Derivatives.  :func:`bundle_adjust_padded` is differentiable in the observations, their information,
+the intrinsics and ``obs_u_right`` by the implicit-function theorem
+(:mod:`privslam_jax.solvers.implicit`; dense Hessian, so for small problems; fixed cameras stay
+fixed; NaN when the solve did not converge or a gauge is left free, e.g. monocular BA with one fixed
+camera).
 
 Sizes.  All arrays are padded to size buckets (cameras, points, observations, pairs); a new bucket
 combination compiles once.  :func:`bundle_adjust` is the host entry point (checks, padding, unpadding).
@@ -49,8 +35,11 @@ combination compiles once.  :func:`bundle_adjust` is the host entry point (check
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+from collections.abc import Callable
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -59,10 +48,18 @@ import numpy as np
 from flax import struct
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from privslam_jax.slam.refine import huber_rho
+from privslam_jax.solvers.implicit import implicit_argmin
+from privslam_jax.solvers.lm import LMParams, SolveSummary, levenberg_marquardt
+from privslam_jax.solvers.robust import huber_rho, huber_weight
+from privslam_jax.solvers.schur import BlockSystem, SchurStructure, analyze, pow2_bucket, schur_damped_solve
 from privslam_jax.types import Camera
 
 __all__ = ["BAConfig", "BAResult", "BAStructure", "analyze", "bundle_adjust", "bundle_adjust_padded", "ba_bucket"]
+
+BAStructure = SchurStructure
+"""The Schur-complement sparsity of a BA problem (:class:`privslam_jax.solvers.schur.SchurStructure`)."""
+ba_bucket = pow2_bucket
+"""Padded sizes of BA problems (:func:`privslam_jax.solvers.schur.pow2_bucket`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,18 +94,6 @@ class BAConfig:
 
 
 @struct.dataclass
-class BAStructure:
-    """Host-computed sparsity of the Schur complement (:func:`analyze`), padded."""
-
-    pair_a: Int[Array, " Q"]
-    """First observation of each pair (``o < o'``, same point)."""
-    pair_b: Int[Array, " Q"]
-    """Second observation of each pair."""
-    chunk_seg: Int[Array, " Qc"]
-    """Camera-pair segment ``c(o)·M + c(o')`` of each chunk of ``chunk`` consecutive pairs."""
-
-
-@struct.dataclass
 class BAResult:
     """Output of :func:`bundle_adjust`."""
 
@@ -124,82 +109,12 @@ class BAResult:
     """Valid observations in front of their camera with ``s_o < chi2`` at the solution."""
     iterations: Int[Array, ""]
     """LM iterations run."""
-
-
-def ba_bucket(n: int, minimum: int = 4) -> int:
-    """Padded size: the smallest power of two ``≥ max(n, minimum)``."""
-    return int(max(minimum, 1 << max(0, int(n - 1).bit_length())))
-
-
-def analyze(
-    obs_cam: np.ndarray, obs_pt: np.ndarray, n_cams: int, n_obs_padded: int, chunk: int, pad: bool = True
-) -> BAStructure:
-    """Pairs of observations of the same point, sorted by camera pair and padded per pair to ``chunk``.
-
-    ``obs_cam``/``obs_pt`` hold the *valid* observations only (rows ``0..O-1`` of the padded arrays);
-    ``n_obs_padded > O`` so that row ``O`` (a padded, zero-weight observation) serves as the dummy.
-    """
-    obs_cam = np.asarray(obs_cam, np.int64)
-    obs_pt = np.asarray(obs_pt, np.int64)
-    n = obs_cam.shape[0]
-    if n_obs_padded <= n:
-        raise ValueError("analyze needs at least one padded observation row for the dummy pair")
-    order = np.argsort(obs_pt, kind="stable")
-    pts_sorted = obs_pt[order]
-    starts = np.flatnonzero(np.r_[True, pts_sorted[1:] != pts_sorted[:-1]]) if n else np.zeros(0, np.int64)
-    sizes = np.diff(np.r_[starts, n])
-    group_start = np.repeat(starts, sizes)
-    pos = np.arange(n)
-    later = group_start + np.repeat(sizes, sizes) - pos - 1  # observations after `pos` in its group
-    total = int(later.sum())
-    first_pos = np.repeat(pos, later)
-    offs = np.arange(total) - np.repeat(np.cumsum(later) - later, later)
-    second_pos = first_pos + 1 + offs
-    a, b = order[first_pos], order[second_pos]
-    seg = obs_cam[a] * n_cams + obs_cam[b]
-    srt = np.argsort(seg, kind="stable")
-    a, b, seg = a[srt], b[srt], seg[srt]
-    # pad every segment to a multiple of `chunk`
-    useg, cnt = np.unique(seg, return_counts=True)
-    padded_cnt = -(-cnt // chunk) * chunk
-    n_chunks = int(padded_cnt.sum() // chunk)
-    dummy = n
-    pa = np.full(n_chunks * chunk, dummy, np.int64)
-    pb = np.full(n_chunks * chunk, dummy, np.int64)
-    dst = np.repeat(np.cumsum(padded_cnt) - padded_cnt, cnt) + (np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-    pa[dst], pb[dst] = a, b
-    chunk_seg = np.repeat(useg, padded_cnt // chunk)
-    n_chunks_pad = ba_bucket(n_chunks + 1, minimum=8) if pad else n_chunks + 1
-    pa = np.r_[pa, np.full((n_chunks_pad - n_chunks) * chunk, dummy)]
-    pb = np.r_[pb, np.full((n_chunks_pad - n_chunks) * chunk, dummy)]
-    chunk_seg = np.r_[chunk_seg, np.zeros(n_chunks_pad - n_chunks, np.int64)]
-    return BAStructure(
-        pair_a=jnp.asarray(pa, jnp.int32), pair_b=jnp.asarray(pb, jnp.int32), chunk_seg=jnp.asarray(chunk_seg, jnp.int32)
-    )
+    summary: SolveSummary
+    """Why the solve stopped (:class:`~privslam_jax.solvers.lm.SolveSummary`)."""
 
 
 # ----------------------------------------------------------------------------------------------
 # jitted core
-
-
-def _sym3_inverse(A: Float[Array, "P 3 3"]) -> Float[Array, "P 3 3"]:
-    """Batched inverse of symmetric positive-definite 3×3 blocks (Jacobi scaling + adjugate)."""
-    d = jnp.sqrt(jnp.diagonal(A, axis1=1, axis2=2))  # (P, 3)
-    s = 1.0 / d
-    B = A * s[:, :, None] * s[:, None, :]
-    a, b, c = B[:, 0, 0], B[:, 0, 1], B[:, 0, 2]
-    e, f, i = B[:, 1, 1], B[:, 1, 2], B[:, 2, 2]
-    c00 = e * i - f * f
-    c01 = c * f - b * i
-    c02 = b * f - c * e
-    c11 = a * i - c * c
-    c12 = b * c - a * f
-    c22 = a * e - b * b
-    inv_det = 1.0 / (a * c00 + b * c01 + c * c02)
-    inv = jnp.stack(
-        [jnp.stack([c00, c01, c02], -1), jnp.stack([c01, c11, c12], -1), jnp.stack([c02, c12, c22], -1)], -2
-    ) * inv_det[:, None, None]
-    return inv * s[:, :, None] * s[:, None, :]
 
 
 def _project(
@@ -238,17 +153,6 @@ def _jacobians(
     return Jc, Jp
 
 
-class _Lin(struct.PyTreeNode):
-    """A linearisation: the blocks of the normal equations and the cost."""
-
-    U: Array  # (M, 6, 6) camera blocks
-    V: Array  # (P, 3, 3) point blocks
-    W: Array  # (O, 6, 3) camera-point block of each observation
-    gc: Array  # (M, 6)
-    gp: Array  # (P, 3)
-    cost: Array  # ()
-
-
 class _Obs(struct.PyTreeNode):
     """Padded observations with per-observation intrinsics and weights."""
 
@@ -279,11 +183,10 @@ def _residuals(obs: _Obs, T: jaxlie.SE3, X: Array, config: _Params):
     return Rm, p_c, e, s, front, 0.5 * jnp.sum(c)
 
 
-def _linearise(obs: _Obs, T: jaxlie.SE3, X: Array, n_cams: int, config: _Params) -> _Lin:
+def _linearise(obs: _Obs, T: jaxlie.SE3, X: Array, n_cams: int, config: _Params) -> BlockSystem:
     Rm, p_c, e, s, front, cost = _residuals(obs, T, X, config)
     delta = obs.delta
-    w = obs.isg * jnp.where(s <= delta * delta, 1.0, delta / jnp.sqrt(jnp.maximum(s, delta * delta)))
-    w = jnp.where(front, w, 0.0)
+    w = jnp.where(front, obs.isg * huber_weight(s, delta), 0.0)
     Jc, Jp = _jacobians(p_c, Rm, obs.K, stereo=obs.stereo is not None)
     if obs.stereo is not None:
         Jc = Jc.at[:, 2].multiply(obs.stereo[:, None])
@@ -297,7 +200,7 @@ def _linearise(obs: _Obs, T: jaxlie.SE3, X: Array, n_cams: int, config: _Params)
     gc_o = jnp.sum(wJc * e[:, :, None], axis=1)
     gp_o = jnp.sum(wJp * e[:, :, None], axis=1)
     P = X.shape[0]
-    return _Lin(
+    return BlockSystem(
         U=jax.ops.segment_sum(U_o, obs.cam, n_cams),
         V=jax.ops.segment_sum(V_o, obs.pt, P),
         W=W_o,
@@ -307,63 +210,14 @@ def _linearise(obs: _Obs, T: jaxlie.SE3, X: Array, n_cams: int, config: _Params)
     )
 
 
-def _schur_off_diagonal(Y: Array, W: Array, structure: BAStructure, n_cams: int, chunk: int) -> Array:
-    """``X = Σ_{o<o'} Y_o W_o'ᵀ`` placed at block ``(c(o), c(o'))``, as a dense ``(6M, 6M)`` matrix."""
-    Ya = Y.reshape(-1, 18)[structure.pair_a].T.reshape(6, 3, -1)  # pair axis last: vectorises
-    Wb = W.reshape(-1, 18)[structure.pair_b].T.reshape(6, 3, -1)
-    prod = Ya[:, None, 0, :] * Wb[None, :, 0, :]
-    for k in (1, 2):
-        prod = prod + Ya[:, None, k, :] * Wb[None, :, k, :]  # (6, 6, Q)
-    prod = jnp.sum(prod.reshape(36, -1, chunk), axis=2).T  # (Q/chunk, 36)
-    Xs = jax.ops.segment_sum(prod, structure.chunk_seg, n_cams * n_cams, indices_are_sorted=True)
-    M = n_cams
-    return Xs.reshape(M, M, 6, 6).transpose(0, 2, 1, 3).reshape(6 * M, 6 * M)
-
-
-def _schur_solve(
-    obs: _Obs, lin: _Lin, lam: Array, fixed_cams: Array, structure: BAStructure, chunk: int
-) -> tuple[Array, Array, Array]:
-    """Solve the damped normal equations by the Schur complement; returns ``(ξ, δ, predicted decrease)``."""
-    M = fixed_cams.shape[0]
-    P = lin.V.shape[0]
-    dtype = lin.U.dtype
-    eye6 = jnp.eye(6, dtype=dtype)
-    dU = jnp.clip(jnp.diagonal(lin.U, axis1=1, axis2=2), 1e-6, 1e32)
-    dV = jnp.clip(jnp.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32)
-    Vinv = _sym3_inverse(lin.V + (lam * dV)[:, :, None] * jnp.eye(3, dtype=dtype)[None])
-    Y = jnp.sum(lin.W[:, :, :, None] * Vinv[obs.pt][:, None, :, :], axis=2)  # (O, 6, 3)
-    # materialise Y: otherwise XLA fuses its computation into every gather below (measured 3-5× slower)
-    Y, Vinv = jax.lax.optimization_barrier((Y, Vinv))
-    rc = -lin.gc + jax.ops.segment_sum(jnp.sum(Y * lin.gp[obs.pt][:, None, :], axis=2), obs.cam, M)
-    S_diag = jax.ops.segment_sum(jnp.sum(Y[:, :, None, :] * lin.W[:, None, :, :], axis=3), obs.cam, M)
-    X_off = _schur_off_diagonal(Y, lin.W, structure, M, chunk)
-    Ud = lin.U + (lam * dU)[:, :, None] * eye6[None] - S_diag
-    Ud = jnp.where(fixed_cams[:, None, None], eye6[None], Ud)
-    fixed6 = jnp.repeat(fixed_cams, 6)
-    S = _block_diag(Ud) - X_off - X_off.T
-    S = jnp.where(fixed6[:, None] | fixed6[None, :], jnp.eye(6 * M, dtype=dtype), S)
-    rc = jnp.where(fixed_cams[:, None], 0.0, rc).reshape(-1)
-    L = jnp.linalg.cholesky(S)
-    xi = jax.scipy.linalg.cho_solve((L, True), rc).reshape(M, 6)
-    # back-substitution for the points
-    rp = -lin.gp - jax.ops.segment_sum(jnp.sum(lin.W * xi[obs.cam][:, :, None], axis=1), obs.pt, P)
-    dp = jnp.sum(Vinv * rp[:, None, :], axis=2)
-    pred = 0.5 * (jnp.sum(xi * (lam * dU * xi - lin.gc)) + jnp.sum(dp * (lam * dV * dp - lin.gp)))
-    return xi, dp, pred
-
-
 class _Params(struct.PyTreeNode):
     """The numeric fields of :class:`BAConfig` as traced values (changing them does not recompile)."""
 
-    max_iterations: Array
+    lm: LMParams
     huber_delta: Array
     chi2: Array
     huber_delta_stereo: Array
     chi2_stereo: Array
-    initial_damping: Array
-    function_tolerance: Array
-    parameter_tolerance: Array
-    target_cost: Array
     min_depth: Array
     behind_chi2: Array
 
@@ -371,18 +225,53 @@ class _Params(struct.PyTreeNode):
     def of(config: BAConfig, dtype: jnp.dtype) -> "_Params":
         f = lambda v: jnp.asarray(v, dtype)  # noqa: E731
         return _Params(
-            max_iterations=jnp.asarray(config.max_iterations, jnp.int32),
+            lm=LMParams.of(dtype, config.max_iterations, config.initial_damping, config.function_tolerance,
+                           parameter_tolerance=config.parameter_tolerance, target_cost=config.target_cost),
             huber_delta=f(jnp.inf if config.huber_delta is None else config.huber_delta),
             chi2=f(config.chi2),
             huber_delta_stereo=f(jnp.inf if config.huber_delta is None else config.huber_delta_stereo),
             chi2_stereo=f(config.chi2_stereo),
-            initial_damping=f(config.initial_damping),
-            function_tolerance=f(config.function_tolerance),
-            parameter_tolerance=f(config.parameter_tolerance),
-            target_cost=f(config.target_cost),
             min_depth=f(config.min_depth),
             behind_chi2=f(config.behind_chi2),
         )
+
+
+def _observations(
+    obs_cam: Int[Array, " O"],
+    obs_pt: Int[Array, " O"],
+    obs_uv: Float[Array, "O 2"],
+    obs_valid: Bool[Array, " O"],
+    obs_inv_sigma2: Float[Array, " O"],
+    fixed_cams: Bool[Array, " M"],
+    intrinsics: Float[Array, "M 5"],
+    config: _Params,
+    obs_u_right: Float[Array, " O"] | None,
+    dtype: Any,
+) -> _Obs:
+    """The padded observations with per-row intrinsics, Huber δ, χ² threshold and information."""
+    n_obs = obs_cam.shape[0]
+    if obs_u_right is None:
+        stereo, uv_obs = None, obs_uv.astype(dtype)
+        delta = jnp.full((n_obs,), config.huber_delta, dtype)
+        chi2 = jnp.full((n_obs,), config.chi2, dtype)
+    else:
+        is_st = obs_u_right >= 0
+        stereo = is_st.astype(dtype)
+        uv_obs = jnp.concatenate([obs_uv.astype(dtype), jnp.where(is_st, obs_u_right, 0.0).astype(dtype)[:, None]], 1)
+        delta = jnp.where(is_st, config.huber_delta_stereo, config.huber_delta).astype(dtype)
+        chi2 = jnp.where(is_st, config.chi2_stereo, config.chi2).astype(dtype)
+    return _Obs(
+        cam=obs_cam,
+        pt=obs_pt,
+        uv=uv_obs,
+        stereo=stereo,
+        delta=delta,
+        chi2=chi2,
+        isg=jnp.where(obs_valid, obs_inv_sigma2.astype(dtype), 0.0),
+        K=intrinsics.astype(dtype)[obs_cam],
+        valid=obs_valid,
+        free=(~fixed_cams)[obs_cam].astype(dtype),
+    )
 
 
 def bundle_adjust_padded(
@@ -407,9 +296,38 @@ def bundle_adjust_padded(
     them does not recompile.
     """
     params = _Params.of(config, points.dtype)
-    return _bundle_adjust_jit(
-        T_c_w, points, obs_cam, obs_pt, obs_uv, obs_valid, obs_inv_sigma2, fixed_cams, intrinsics, structure,
-        params, obs_u_right, config.chunk,
+    theta = (obs_uv, obs_inv_sigma2, intrinsics, obs_u_right)
+    const = (obs_cam, obs_pt, obs_valid, fixed_cams, structure, params)
+    (T_f, X_f), result = _differentiable_ba(config.chunk)((T_c_w, points), theta, const)
+    return result.replace(T_c_w=T_f, points=X_f)
+
+
+@functools.cache
+def _differentiable_ba(chunk: int) -> Callable[..., tuple[tuple[jaxlie.SE3, Array], BAResult]]:
+    """:func:`_bundle_adjust_jit` with implicit derivatives of the poses and points in
+    ``θ = (obs_uv, obs_inv_sigma2, intrinsics, obs_u_right)`` (fixed cameras stay fixed)."""
+
+    def solve(x0: tuple, theta: tuple, const: tuple) -> tuple[tuple[jaxlie.SE3, Array], BAResult]:
+        obs_uv, isg, intrinsics, u_right = theta
+        cam, pt, valid, fixed, structure, params = const
+        out = _bundle_adjust_jit(x0[0], x0[1], cam, pt, obs_uv, valid, isg, fixed, intrinsics, structure, params,
+                                 u_right, chunk)
+        return (out.T_c_w, out.points), out
+
+    def objective(x: tuple, theta: tuple, const: tuple, out: BAResult) -> Float[Array, ""]:
+        obs_uv, isg, intrinsics, u_right = theta
+        cam, pt, valid, fixed, _, params = const
+        obs = _observations(cam, pt, obs_uv, valid, isg, fixed, intrinsics, params, u_right, x[1].dtype)
+        return _residuals(obs, x[0], x[1], params)[-1]
+
+    def retract(x: tuple, step: tuple, const: tuple) -> tuple[jaxlie.SE3, Array]:
+        free = (~const[3]).astype(x[1].dtype)[:, None]
+        return jax.vmap(lambda v, T: jaxlie.SE3.exp(v) @ T)(step[0] * free, x[0]), x[1] + step[1]
+
+    return implicit_argmin(
+        solve, objective, retract,
+        zero_tangent=lambda x: (jnp.zeros((x[0].wxyz_xyz.shape[0], 6), x[1].dtype), jnp.zeros_like(x[1])),
+        converged=lambda out: out.summary.converged,
     )
 
 
@@ -431,74 +349,30 @@ def _bundle_adjust_jit(
 ) -> BAResult:
     dtype = points.dtype
     M = fixed_cams.shape[0]
-    n_obs = obs_cam.shape[0]
-    if obs_u_right is None:
-        stereo, uv_obs = None, obs_uv.astype(dtype)
-        delta = jnp.full((n_obs,), config.huber_delta, dtype)
-        chi2 = jnp.full((n_obs,), config.chi2, dtype)
-    else:
-        is_st = obs_u_right >= 0
-        stereo = is_st.astype(dtype)
-        uv_obs = jnp.concatenate([obs_uv.astype(dtype), jnp.where(is_st, obs_u_right, 0.0).astype(dtype)[:, None]], 1)
-        delta = jnp.where(is_st, config.huber_delta_stereo, config.huber_delta).astype(dtype)
-        chi2 = jnp.where(is_st, config.chi2_stereo, config.chi2).astype(dtype)
-    obs = _Obs(
-        cam=obs_cam,
-        pt=obs_pt,
-        uv=uv_obs,
-        stereo=stereo,
-        delta=delta,
-        chi2=chi2,
-        isg=jnp.where(obs_valid, obs_inv_sigma2.astype(dtype), 0.0),
-        K=intrinsics.astype(dtype)[obs_cam],
-        valid=obs_valid,
-        free=(~fixed_cams)[obs_cam].astype(dtype),
-    )
+    obs = _observations(obs_cam, obs_pt, obs_uv, obs_valid, obs_inv_sigma2, fixed_cams, intrinsics, config, obs_u_right, dtype)
     T0 = jax.tree.map(lambda a: jnp.asarray(a, dtype), T_c_w)
-    lin0 = _linearise(obs, T0, points, M, config)
-    one = jnp.asarray(1.0, dtype)
-    init = (T0, points, lin0, one * config.initial_damping, 2.0 * one, jnp.asarray(0), jnp.asarray(False))
 
-    def cond(st):
-        return (st[5] < config.max_iterations) & ~st[6] & (st[2].cost > config.target_cost)
+    def retract(x, step):
+        (T, X), (xi, dp) = x, step
+        return jax.vmap(lambda v, Tc: jaxlie.SE3.exp(v) @ Tc)(xi, T), X + dp
 
-    def body(st):
-        T, X, lin, lam, nu, it, _ = st
-        xi, dp, pred = _schur_solve(obs, lin, lam, fixed_cams, structure, chunk)
-        T_new, X_new = jax.vmap(lambda v, Tc: jaxlie.SE3.exp(v) @ Tc)(xi, T), X + dp
-        cost_new = _residuals(obs, T_new, X_new, config)[-1]
-        ok = jnp.isfinite(cost_new) & jnp.all(jnp.isfinite(xi)) & jnp.all(jnp.isfinite(dp))
-        accept = ok & (cost_new < lin.cost)
-        # re-linearise only after an accepted step (a rejected one costs a residual evaluation)
-        lin_new = jax.lax.cond(accept, lambda: _linearise(obs, T_new, X_new, M, config), lambda: lin)
-        gain = (lin.cost - cost_new) / jnp.maximum(pred, jnp.finfo(dtype).tiny)
-        lam_acc = lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-        x_norm = jnp.sqrt(jnp.sum(X * X) + jnp.sum(T.wxyz_xyz**2))
-        step = jnp.sqrt(jnp.sum(xi * xi) + jnp.sum(dp * dp))
-        small_step = ok & (step <= config.parameter_tolerance * (x_norm + config.parameter_tolerance))
-        small_dec = accept & ((lin.cost - cost_new) <= config.function_tolerance * lin.cost)
-        done = small_step | small_dec | (lam > 1e32)
-        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(accept, x, y), a, b)  # noqa: E731
-        return (
-            pick(T_new, T),
-            pick(X_new, X),
-            lin_new,
-            jnp.where(accept, lam_acc, lam * nu),
-            jnp.where(accept, 2.0 * one, nu * 2.0),
-            it + 1,
-            done,
-        )
-
-    T_f, X_f, lin_f, _, _, it_f, _ = jax.lax.while_loop(cond, body, init)
+    (T_f, X_f), lin_f, summary = levenberg_marquardt(
+        (T0, points),
+        linearise=lambda x: _linearise(obs, x[0], x[1], M, config),
+        solve=lambda lin, lam: _split(schur_damped_solve(lin, obs.cam, obs.pt, lam, fixed_cams, structure, chunk)),
+        cost=lambda x: _residuals(obs, x[0], x[1], config)[-1],
+        retract=retract,
+        params=config.lm,
+    )
     _, _, _, s, front, _ = _residuals(obs, T_f, X_f, config)
     inl = obs_valid & front & (s < obs.chi2)
-    return BAResult(T_c_w=T_f, points=X_f, cost=lin_f.cost, initial_cost=lin0.cost, inliers=inl, iterations=it_f)
+    return BAResult(T_c_w=T_f, points=X_f, cost=lin_f.cost, initial_cost=summary.initial_cost, inliers=inl,
+                    iterations=summary.iterations, summary=summary)
 
 
-def _block_diag(B: Float[Array, "M 6 6"]) -> Float[Array, "N N"]:
-    M = B.shape[0]
-    eyeM = jnp.eye(M, dtype=B.dtype)
-    return (eyeM[:, None, :, None] * B[:, :, None, :]).reshape(6 * M, 6 * M)
+def _split(out: tuple[Array, Array, Array]) -> tuple[tuple[Array, Array], Array]:
+    xi, dp, predicted = out
+    return (xi, dp), predicted
 
 
 def _check(name: str, a: np.ndarray, shape: tuple[int, ...]) -> None:

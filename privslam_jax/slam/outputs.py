@@ -71,19 +71,11 @@ def align_to_ground_truth(est: np.ndarray, gt: np.ndarray, sim3: bool) -> np.nda
     return apply_similarity(R, t, c, est)
 
 
-def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | None, mode: str,
-                  wall_time: float, plots: bool = True) -> dict:
-    """Write the files described in the module docstring; returns the metrics dict."""
-    from privslam_jax.data.ply import save_point_cloud
-    from privslam_jax.data.trajectory_io import write_tum_matrices
-
-    out.mkdir(parents=True, exist_ok=True)
+def slam_metrics(result, timestamps: np.ndarray, gt: np.ndarray | None, mode: str, wall_time: float) -> dict:
+    """The run's metrics (tracking, map, timings; ATE/RPE against ``gt`` when given), in memory."""
     T = np.asarray(result.trajectory.as_matrices(), np.float64)
     n = T.shape[0]
     ts = np.asarray(timestamps, np.float64)[:n]
-    write_tum_matrices(out / "trajectory.txt", ts, T)
-    write_tum_matrices(out / "keyframes.txt", ts[result.keyframe_indices], result.keyframe_poses)
-    save_point_cloud(out / "map.ply", result.map)
     total = result.timings.get("total", np.full(n, np.nan))
     mapping = np.nan_to_num(result.timings.get("mapping", np.zeros(n)))
     track = total - mapping  # per frame: extraction + stereo/depth + tracking, without local mapping
@@ -110,6 +102,23 @@ def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | No
             metrics["rpe_trans_sim3"] = float(rt.rmse)
         except ValueError as err:  # e.g. a straight ground-truth path: Umeyama is ill-posed; keep the outputs
             metrics["alignment_error"] = str(err)
+    return metrics
+
+
+def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | None, mode: str,
+                  wall_time: float, plots: bool = True) -> dict:
+    """Write the files described in the module docstring; returns :func:`slam_metrics`."""
+    from privslam_jax.data.ply import save_point_cloud
+    from privslam_jax.data.trajectory_io import write_tum_matrices
+
+    out.mkdir(parents=True, exist_ok=True)
+    T = np.asarray(result.trajectory.as_matrices(), np.float64)
+    n = T.shape[0]
+    ts = np.asarray(timestamps, np.float64)[:n]
+    write_tum_matrices(out / "trajectory.txt", ts, T)
+    write_tum_matrices(out / "keyframes.txt", ts[result.keyframe_indices], result.keyframe_poses)
+    save_point_cloud(out / "map.ply", result.map)
+    metrics = slam_metrics(result, timestamps, gt, mode, wall_time)
     write_atomic(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     if plots:
         _plots(out, T, ts, gt[:n] if gt is not None else None, result.tracked, mode)

@@ -19,8 +19,9 @@ and build the 6×6 normal equations with the IRLS weights ``w_i = ρ'(s_i)``
 
     H = Σ w_i Ω_i J_iᵀ J_i,   g = Σ w_i Ω_i J_iᵀ e_i,   (H + λ D) ξ = −g,   D = diag(H) clamped to [1e-6, 1e32].
 
-The damped system is solved by Cholesky; λ follows Nielsen's rule (accept if the gain ratio
-``ϱ = (F − F_new)/(½ ξᵀ(λ D ξ − g)) > 0``, then ``λ ← λ·max(⅓, 1 − (2ϱ − 1)³)``, else ``λ ← λν, ν ← 2ν``).
+The damped system is solved by Cholesky (:mod:`privslam_jax.solvers.linear`) inside the shared
+Levenberg–Marquardt loop (:mod:`privslam_jax.solvers.lm`, Nielsen's damping rule); why the last round
+stopped is ``RefineResult.summary``.
 Measured (DESIGN §5.3): optimistix's default LM (QR on the tall Jacobian) took 170–280 ms for 2,000
 matches, this hand-written 6×6 normal-equation solve a few ms (``benchmarks/bench_refine.py``).
 
@@ -30,6 +31,12 @@ and the next round uses only the inliers.  Observations whose point lies behind 
 (``z ≤ min_depth``) get no gradient and a constant penalty ``ρ(behind_chi2)`` so that a step cannot
 lower the cost by pushing points behind the camera; they are outliers.
 
+Derivatives.  :func:`refine_pose_padded` is differentiable (``jax.grad``, ``jacfwd``, ``jacrev``, under
+``jit`` and ``vmap``) in the points, observations, information, ``u_right`` and intrinsics by the
+implicit-function theorem on the last round's cost (:mod:`privslam_jax.solvers.implicit`); the
+re-classification between rounds is piecewise constant and has no derivative.  When the last round did
+not converge the derivative is NaN.
+
 Shapes.  The jitted core takes padded arrays and a ``valid`` mask; :func:`refine_pose` pads on the
 host to a size bucket (:func:`bucket_size`) so that successive frames with different match counts
 reuse the compiled program.
@@ -38,8 +45,11 @@ reuse the compiled program.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+from collections.abc import Callable
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -55,6 +65,10 @@ from privslam_jax.geometry.projection import (
     stereo_jacobians,
     world_to_camera,
 )
+from privslam_jax.solvers.implicit import implicit_argmin
+from privslam_jax.solvers.linear import DenseSystem, dense_damped_solve
+from privslam_jax.solvers.lm import LMParams, SolveSummary, levenberg_marquardt
+from privslam_jax.solvers.robust import huber_rho, huber_weight
 from privslam_jax.types import Camera
 
 __all__ = [
@@ -65,7 +79,6 @@ __all__ = [
     "pad_to_bucket",
     "refine_pose",
     "refine_pose_padded",
-    "huber_rho",
     "camera_params",
 ]
 
@@ -117,17 +130,11 @@ class RefineResult:
     """Valid observations in front of the camera passing the χ² test at the final pose."""
     iterations: Int[Array, ""]
     """LM iterations run in total (over all rounds)."""
-
-
-def huber_rho(s: Float[Array, "*b"], delta: Array | float) -> Float[Array, "*b"]:
-    """Huber loss of a squared (whitened) error: ``s`` if ``s ≤ δ²`` else ``2δ√s − δ²``."""
-    safe = jnp.maximum(s, delta * delta)
-    return jnp.where(s <= delta * delta, s, 2.0 * delta * jnp.sqrt(safe) - delta * delta)
-
-
-def _huber_weight(s: Float[Array, "*b"], delta: Array | float) -> Float[Array, "*b"]:
-    safe = jnp.maximum(s, delta * delta)
-    return jnp.where(s <= delta * delta, 1.0, delta / jnp.sqrt(safe))
+    active: Bool[Array, " N"]
+    """The observations the last round minimised over (its cost is ``cost``)."""
+    summary: SolveSummary
+    """Why the last round stopped (:class:`~privslam_jax.solvers.lm.SolveSummary`; its ``iterations``
+    count that round only)."""
 
 
 def camera_params(camera: Camera, dtype: jnp.dtype | type | None = None) -> Float[Array, " 5"]:
@@ -245,17 +252,45 @@ def _obs_cost(
     return jnp.where(mask, c, 0.0), s, front
 
 
+def _observations(
+    uv: Float[Array, "N 2"], u_right: Float[Array, " N"] | None, config: "_RefineParams", dtype: Any
+) -> tuple[Float[Array, "N K"], Bool[Array, " N"] | None, Float[Array, " N"], Float[Array, " N"]]:
+    """Observation rows ``(u, v[, u_r])``, the stereo flags and each row's Huber δ and χ² threshold."""
+    n = uv.shape[0]
+    if u_right is None:
+        return uv, None, jnp.full((n,), config.huber_mono, dtype), jnp.full((n,), config.chi2_mono, dtype)
+    stereo = u_right >= 0
+    obs = jnp.concatenate([uv, jnp.where(stereo, u_right, 0.0)[:, None]], axis=1)
+    delta = jnp.where(stereo, config.huber_stereo, config.huber_mono).astype(dtype)
+    chi2 = jnp.where(stereo, config.chi2_stereo, config.chi2_mono).astype(dtype)
+    return obs, stereo, delta, chi2
+
+
+def _cost(
+    T: jaxlie.SE3,
+    points_w: Float[Array, "N 3"],
+    obs: Float[Array, "N K"],
+    intrinsics: Float[Array, " 5"],
+    stereo: Bool[Array, " N"] | None,
+    mask: Bool[Array, " N"],
+    inv_sigma2: Float[Array, " N"],
+    delta: Float[Array, " N"],
+    config: "_RefineParams",
+) -> tuple[Float[Array, ""], Float[Array, " N"], Bool[Array, " N"]]:
+    """``F(T) = ½ Σ_{mask} ρ(s_i)``, with each whitened χ² ``s_i`` and in-front flag."""
+    p_c, e = _residuals(T, points_w, obs, intrinsics, stereo)
+    c, s, front = _obs_cost(p_c, e, mask, inv_sigma2, delta, config)
+    return 0.5 * jnp.sum(c), s, front
+
+
 class _RefineParams(struct.PyTreeNode):
     """Numeric :class:`RefineConfig` fields as traced values (changing them does not recompile)."""
 
-    max_iterations: Array
+    lm: LMParams
     huber_mono: Array
     huber_stereo: Array
     chi2_mono: Array
     chi2_stereo: Array
-    initial_damping: Array
-    function_tolerance: Array
-    step_tolerance: Array
     min_depth: Array
     behind_chi2: Array
 
@@ -264,14 +299,12 @@ class _RefineParams(struct.PyTreeNode):
         f = lambda v: jnp.asarray(v, dtype)  # noqa: E731
         inf = jnp.inf
         return _RefineParams(
-            max_iterations=jnp.asarray(config.max_iterations, jnp.int32),
+            lm=LMParams.of(dtype, config.max_iterations, config.initial_damping, config.function_tolerance,
+                           step_tolerance=config.step_tolerance),
             huber_mono=f(config.huber_mono if config.robust else inf),
             huber_stereo=f(config.huber_stereo if config.robust else inf),
             chi2_mono=f(config.chi2_mono),
             chi2_stereo=f(config.chi2_stereo),
-            initial_damping=f(config.initial_damping),
-            function_tolerance=f(config.function_tolerance),
-            step_tolerance=f(config.step_tolerance),
             min_depth=f(config.min_depth),
             behind_chi2=f(config.behind_chi2),
         )
@@ -295,7 +328,34 @@ def refine_pose_padded(
     Only ``config.rounds``, the shapes and ``u_right is None`` select the compiled program.
     """
     params = _RefineParams.of(config, points_w.dtype)
-    return _refine_jit(T_c_w, points_w, uv, valid, inv_sigma2, u_right, intrinsics, params, config.rounds)
+    theta = (points_w, uv, inv_sigma2, u_right, intrinsics)
+    T_f, result = _differentiable_refine(config.rounds)(T_c_w, theta, (valid, params))
+    return result.replace(T_c_w=T_f)
+
+
+@functools.cache
+def _differentiable_refine(rounds: int) -> Callable[..., tuple[jaxlie.SE3, RefineResult]]:
+    """:func:`_refine_jit` with implicit derivatives in ``θ = (points_w, uv, inv_sigma2, u_right, intrinsics)``."""
+
+    def solve(T0: jaxlie.SE3, theta: tuple, const: tuple) -> tuple[jaxlie.SE3, RefineResult]:
+        points_w, uv, inv_sigma2, u_right, intrinsics = theta
+        valid, params = const
+        out = _refine_jit(T0, points_w, uv, valid, inv_sigma2, u_right, intrinsics, params, rounds)
+        return out.T_c_w, out
+
+    def objective(T: jaxlie.SE3, theta: tuple, const: tuple, out: RefineResult) -> Float[Array, ""]:
+        points_w, uv, inv_sigma2, u_right, intrinsics = theta
+        params = const[1]
+        dtype = points_w.dtype
+        obs, stereo, delta, _ = _observations(uv, u_right, params, dtype)
+        return _cost(T, points_w, obs, intrinsics.astype(dtype), stereo, out.active, inv_sigma2, delta, params)[0]
+
+    return implicit_argmin(
+        solve, objective,
+        retract=lambda T, xi, const: jaxlie.SE3.exp(xi) @ T,
+        zero_tangent=lambda T: jnp.zeros(6, T.wxyz_xyz.dtype),
+        converged=lambda out: out.summary.converged,
+    )
 
 
 @partial(jax.jit, static_argnames=("rounds",))
@@ -313,22 +373,12 @@ def _refine_jit(
     dtype = points_w.dtype
     intrinsics = intrinsics.astype(dtype)
     T_c_w = jax.tree.map(lambda a: jnp.asarray(a, dtype), T_c_w)
-    if u_right is None:
-        obs, stereo = uv, None
-        delta = jnp.full(valid.shape, config.huber_mono, dtype)
-        chi2 = jnp.full(valid.shape, config.chi2_mono, dtype)
-    else:
-        stereo = u_right >= 0
-        obs = jnp.concatenate([uv, jnp.where(stereo, u_right, 0.0)[:, None]], axis=1)
-        delta = jnp.where(stereo, config.huber_stereo, config.huber_mono).astype(dtype)
-        chi2 = jnp.where(stereo, config.chi2_stereo, config.chi2_mono).astype(dtype)
+    obs, stereo, delta, chi2 = _observations(uv, u_right, config, dtype)
 
     def cost_at(T: jaxlie.SE3, mask: Bool[Array, " N"]) -> tuple[Float[Array, ""], Float[Array, " N"], Bool[Array, " N"]]:
-        p_c, e = _residuals(T, points_w, obs, intrinsics, stereo)
-        c, s, front = _obs_cost(p_c, e, mask, inv_sigma2, delta, config)
-        return 0.5 * jnp.sum(c), s, front
+        return _cost(T, points_w, obs, intrinsics, stereo, mask, inv_sigma2, delta, config)
 
-    def linearise(T: jaxlie.SE3, mask: Bool[Array, " N"]) -> tuple[Float[Array, "6 6"], Float[Array, " 6"], Float[Array, ""]]:
+    def linearise(T: jaxlie.SE3, mask: Bool[Array, " N"]) -> DenseSystem:
         p_c, e = _residuals(T, points_w, obs, intrinsics, stereo)
         c, s, front = _obs_cost(p_c, e, mask, inv_sigma2, delta, config)
         fx, fy, bf = intrinsics[0], intrinsics[1], intrinsics[0] * intrinsics[4]
@@ -338,51 +388,21 @@ def _refine_jit(
         else:
             J, _ = jax.vmap(stereo_jacobians, in_axes=(0, None, None, None, None))(p_c, R, fx, fy, bf)
             J = J.at[:, 2].multiply(stereo.astype(dtype)[:, None])
-        w = _huber_weight(s, delta)
-        w = jnp.where(mask & front, w * inv_sigma2, 0.0)
+        w = jnp.where(mask & front, huber_weight(s, delta) * inv_sigma2, 0.0)
         H = jnp.einsum("n,nki,nkj->ij", w, J, J)
         g = jnp.einsum("n,nki,nk->i", w, J, e)
-        return H, g, 0.5 * jnp.sum(c)
+        return DenseSystem(H=H, g=g, cost=0.5 * jnp.sum(c))
 
-    def run_round(T: jaxlie.SE3, mask: Bool[Array, " N"]) -> tuple[jaxlie.SE3, Float[Array, ""], Int[Array, ""]]:
-        H0, g0, cost0 = linearise(T, mask)
-        lam0 = jnp.asarray(config.initial_damping, dtype)
-        # state: T, H, g, cost, lambda, nu, iteration, done
-        init = (T, H0, g0, cost0, lam0, jnp.asarray(2.0, dtype), jnp.asarray(0), jnp.asarray(False))
-
-        def cond(st):
-            return (st[6] < config.max_iterations) & ~st[7]
-
-        def body(st):
-            T, H, g, cost, lam, nu, it, _ = st
-            d = jnp.clip(jnp.diagonal(H), 1e-6, 1e32)
-            A = H + jnp.diag(lam * d)
-            L = jnp.linalg.cholesky(A)
-            xi = jax.scipy.linalg.cho_solve((L, True), -g)
-            T_new = jaxlie.SE3.exp(xi) @ T
-            H_new, g_new, cost_new = linearise(T_new, mask)
-            pred = 0.5 * jnp.dot(xi, lam * d * xi - g)
-            ok = jnp.isfinite(cost_new) & jnp.all(jnp.isfinite(xi))
-            gain = (cost - cost_new) / jnp.maximum(pred, jnp.finfo(dtype).tiny)
-            accept = ok & (cost_new < cost)
-            lam_acc = lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-            small_step = jnp.sqrt(jnp.dot(xi, xi)) < config.step_tolerance
-            small_decrease = accept & ((cost - cost_new) <= config.function_tolerance * cost)
-            done = small_step | small_decrease | (lam > 1e32) | (cost_new == 0.0)
-            pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(accept, x, y), a, b)  # noqa: E731
-            return (
-                pick(T_new, T),
-                pick(H_new, H),
-                pick(g_new, g),
-                jnp.where(accept, cost_new, cost),
-                jnp.where(accept, lam_acc, lam * nu),
-                jnp.where(accept, jnp.asarray(2.0, dtype), nu * 2.0),
-                it + 1,
-                done,
-            )
-
-        T_f, _, _, cost_f, _, _, it_f, _ = jax.lax.while_loop(cond, body, init)
-        return T_f, cost_f, it_f
+    def run_round(T: jaxlie.SE3, mask: Bool[Array, " N"]) -> tuple[jaxlie.SE3, SolveSummary]:
+        T_f, _, summary = levenberg_marquardt(
+            T,
+            linearise=lambda T: linearise(T, mask),
+            solve=dense_damped_solve,
+            cost=lambda T: cost_at(T, mask)[0],
+            retract=lambda T, xi: jaxlie.SE3.exp(xi) @ T,
+            params=config.lm,
+        )
+        return T_f, summary
 
     def classify(T: jaxlie.SE3) -> Bool[Array, " N"]:
         _, s, front = cost_at(T, valid)
@@ -391,13 +411,15 @@ def _refine_jit(
     initial_cost, _, _ = cost_at(T_c_w, valid)
 
     def round_step(carry, _):
-        T, mask, iters, _ = carry
-        T, cost, it = run_round(T, mask)
-        return (T, classify(T), iters + it, cost), None
+        T, mask, _, iters, _ = carry
+        T, summary = run_round(T, mask)
+        return (T, classify(T), mask, iters + summary.iterations, summary), None
 
-    carry0 = (T_c_w, valid, jnp.asarray(0), initial_cost)
-    (T_f, inl, iters, cost_f), _ = jax.lax.scan(round_step, carry0, None, length=rounds)
-    return RefineResult(T_c_w=T_f, cost=cost_f, initial_cost=initial_cost, inliers=inl, iterations=iters)
+    summary0 = SolveSummary(status=jnp.asarray(0), iterations=jnp.asarray(0), initial_cost=initial_cost, cost=initial_cost)
+    carry0 = (T_c_w, valid, valid, jnp.asarray(0), summary0)
+    (T_f, inl, active, iters, summary), _ = jax.lax.scan(round_step, carry0, None, length=rounds)
+    return RefineResult(T_c_w=T_f, cost=summary.cost, initial_cost=initial_cost, inliers=inl, iterations=iters,
+                        active=active, summary=summary)
 
 
 def refine_pose(
@@ -454,4 +476,4 @@ def refine_pose(
         camera_params(camera, dtype),
         config,
     )
-    return out.replace(inliers=out.inliers[:n])
+    return out.replace(inliers=out.inliers[:n], active=out.active[:n])
