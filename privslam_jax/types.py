@@ -67,9 +67,10 @@ class Camera:
         return (self.height, self.width)
 
     def project(self, p_c: Float[Array, "*batch 3"]) -> Float[Array, "*batch 2"]:
-        """Pinhole projection of camera-frame points to pixels ``(u, v)``."""
-        z = p_c[..., 2]
-        return jnp.stack([self.fx * p_c[..., 0] / z + self.cx, self.fy * p_c[..., 1] / z + self.cy], axis=-1)
+        """Pinhole projection of camera-frame points to pixels ``(u, v)`` (:func:`privslam_jax.geometry.projection.pinhole`)."""
+        from privslam_jax.geometry.projection import pinhole
+
+        return pinhole(jnp.asarray(p_c), self.fx, self.fy, self.cx, self.cy)
 
     def unproject(self, uv: Float[Array, "*batch 2"], depth: Float[Array, "*batch"]) -> Float[Array, "*batch 3"]:
         """Back-project pixels with their depth (``z``, not range) to camera-frame points."""

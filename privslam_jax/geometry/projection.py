@@ -4,8 +4,10 @@ Conventions (DESIGN §3): ``T_c_w`` maps world points into the camera frame (``p
 ``T_w_c = T_c_w⁻¹`` is the camera pose.  The camera looks along ``+z``, ``x`` right, ``y`` down;
 pixels ``(u, v)`` with ``v`` down (OpenCV).
 
-Every kernel here is written for **one** point / observation and ``vmap``-ed by the caller (or by the
-``*_batch`` helpers), in the manner of jaxls.
+The projection and its Jacobians are written once, here, elementwise over any batch shape
+(``*b``), so one camera with ``N`` points, one camera per observation (bundle adjustment) and a single
+point all use the same code; :func:`pinhole` also takes numpy arrays (the SLAM front end's host-side
+map queries), where it computes in numpy.
 
 Jacobians (used by :mod:`privslam_jax.slam.refine` and :mod:`privslam_jax.slam.ba`) are for the
 **left** perturbation of the world-to-camera pose, ``T_c_w ← exp(δ) · T_c_w`` with jaxlie's tangent
@@ -23,10 +25,13 @@ residual sign (g2o uses ``obs − proj``; here ``r = proj − obs``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import jaxlie
-from jaxtyping import Array, Float
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from privslam_jax.types import Camera
 
@@ -65,19 +70,25 @@ def world_to_camera_from_pose(T_w_c: jaxlie.SE3, p_w: Float[Array, "*batch 3"]) 
     return (p_w - jnp.reshape(t, (1,) * (p_w.ndim - 1) + (3,))) @ T_w_c.rotation().as_matrix()
 
 
-def pinhole(p_c: Float[Array, "3"], fx: Array | float, fy: Array | float, cx: Array | float, cy: Array | float) -> Float[Array, "2"]:
-    """Pinhole projection of one camera-frame point: ``(fx·x/z + cx, fy·y/z + cy)``."""
-    inv_z = 1.0 / p_c[2]
-    return jnp.stack([fx * p_c[0] * inv_z + cx, fy * p_c[1] * inv_z + cy])
+def _xp(a: Any) -> Any:
+    return np if isinstance(a, np.ndarray) else jnp
+
+
+def pinhole(
+    p_c: Float[Array | np.ndarray, "*b 3"], fx: ArrayLike, fy: ArrayLike, cx: ArrayLike, cy: ArrayLike
+) -> Float[Array | np.ndarray, "*b 2"]:
+    """Pinhole projection of camera-frame points: ``(fx·x/z + cx, fy·y/z + cy)``."""
+    inv_z = 1.0 / p_c[..., 2]
+    return _xp(p_c).stack([fx * p_c[..., 0] * inv_z + cx, fy * p_c[..., 1] * inv_z + cy], axis=-1)
 
 
 def pinhole_stereo(
-    p_c: Float[Array, "3"], fx: Array | float, fy: Array | float, cx: Array | float, cy: Array | float, bf: Array | float
-) -> Float[Array, "3"]:
+    p_c: Float[Array | np.ndarray, "*b 3"], fx: ArrayLike, fy: ArrayLike, cx: ArrayLike, cy: ArrayLike, bf: ArrayLike
+) -> Float[Array | np.ndarray, "*b 3"]:
     """Rectified stereo projection ``(u, v, u_r)`` with ``u_r = u − bf/z`` and ``bf = fx·baseline``."""
-    inv_z = 1.0 / p_c[2]
-    u = fx * p_c[0] * inv_z + cx
-    return jnp.stack([u, fy * p_c[1] * inv_z + cy, u - bf * inv_z])
+    inv_z = 1.0 / p_c[..., 2]
+    u = fx * p_c[..., 0] * inv_z + cx
+    return _xp(p_c).stack([u, fy * p_c[..., 1] * inv_z + cy, u - bf * inv_z], axis=-1)
 
 
 def project_points(T_c_w: jaxlie.SE3, p_w: Float[Array, "N 3"], camera: Camera) -> Float[Array, "N 2"]:
@@ -99,30 +110,32 @@ def reprojection_residuals(
     return jax.vmap(reprojection_residual, in_axes=(None, 0, 0, None))(T_c_w, p_w, uv, camera)
 
 
-def _d_proj_d_pc(p_c: Float[Array, "3"], fx: Array | float, fy: Array | float) -> Float[Array, "2 3"]:
-    inv_z = 1.0 / p_c[2]
-    z = jnp.zeros_like(inv_z)
-    return jnp.stack(
-        [
-            jnp.stack([fx * inv_z, z, -fx * p_c[0] * inv_z * inv_z]),
-            jnp.stack([z, fy * inv_z, -fy * p_c[1] * inv_z * inv_z]),
-        ]
-    )
+def _d_uv_d_pc(p_c: Float[Array, "*b 3"], fx: ArrayLike, fy: ArrayLike) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3"]]:
+    """The rows ``∂u/∂p_c`` and ``∂v/∂p_c``."""
+    x, y, inv_z = p_c[..., 0], p_c[..., 1], 1.0 / p_c[..., 2]
+    zero = jnp.zeros_like(inv_z)
+    return (jnp.stack([fx * inv_z + zero, zero, -fx * x * inv_z * inv_z], -1),
+            jnp.stack([zero, fy * inv_z + zero, -fy * y * inv_z * inv_z], -1))
 
 
-def _d_pc_d_pose(p_c: Float[Array, "3"]) -> Float[Array, "3 6"]:
-    return jnp.concatenate([jnp.eye(3, dtype=p_c.dtype), -skew(p_c)], axis=1)
+def _chain(rows: list[Float[Array, "*b 3"]], p_c: Float[Array, "*b 3"], R_c_w: Float[Array, "*r 3 3"]
+           ) -> tuple[Float[Array, "*b K 6"], Float[Array, "*b K 3"]]:
+    """``∂r/∂(ρ, ω) = [P | P·(−[p_c]ₓ)]`` (row-wise ``(P_k, p_c × P_k)``) and ``∂r/∂p_w = P·R_c_w``."""
+    J_pose = jnp.stack([jnp.concatenate([P, jnp.cross(p_c, P)], -1) for P in rows], -2)
+    R = jnp.reshape(R_c_w, (1,) * (p_c.ndim + 1 - R_c_w.ndim) + R_c_w.shape)  # explicit rank promotion
+    J_point = jnp.stack([jnp.sum(P[..., :, None] * R, -2) for P in rows], -2)
+    return J_pose, J_point
 
 
 def reprojection_jacobians(
-    p_c: Float[Array, "3"], R_c_w: Float[Array, "3 3"], fx: Array | float, fy: Array | float
-) -> tuple[Float[Array, "2 6"], Float[Array, "2 3"]]:
+    p_c: Float[Array, "*b 3"], R_c_w: Float[Array, "*r 3 3"], fx: ArrayLike, fy: ArrayLike
+) -> tuple[Float[Array, "*b 2 6"], Float[Array, "*b 2 3"]]:
     """Jacobians of ``π(T_c_w p_w)`` w.r.t. the left pose perturbation ``(ρ, ω)`` and the point ``p_w``.
 
-    ``p_c`` is the camera-frame point ``T_c_w p_w`` (already computed by the caller).
+    ``p_c`` is the camera-frame point ``T_c_w p_w`` (already computed by the caller); ``R_c_w``,
+    ``fx``, ``fy`` broadcast against its batch shape (one camera, or one per observation).
     """
-    J_proj = _d_proj_d_pc(p_c, fx, fy)
-    return J_proj @ _d_pc_d_pose(p_c), J_proj @ R_c_w
+    return _chain(list(_d_uv_d_pc(p_c, fx, fy)), p_c, R_c_w)
 
 
 def stereo_residual(
@@ -136,12 +149,12 @@ def stereo_residual(
 
 
 def stereo_jacobians(
-    p_c: Float[Array, "3"], R_c_w: Float[Array, "3 3"], fx: Array | float, fy: Array | float, bf: Array | float
-) -> tuple[Float[Array, "3 6"], Float[Array, "3 3"]]:
-    """Jacobians of :func:`pinhole_stereo` ∘ ``T_c_w`` w.r.t. ``(ρ, ω)`` and ``p_w``."""
-    J2 = _d_proj_d_pc(p_c, fx, fy)
-    inv_z = 1.0 / p_c[2]
+    p_c: Float[Array, "*b 3"], R_c_w: Float[Array, "*r 3 3"], fx: ArrayLike, fy: ArrayLike, bf: ArrayLike
+) -> tuple[Float[Array, "*b 3 6"], Float[Array, "*b 3 3"]]:
+    """Jacobians of :func:`pinhole_stereo` ∘ ``T_c_w`` w.r.t. ``(ρ, ω)`` and ``p_w`` (batched as
+    :func:`reprojection_jacobians`)."""
+    Pu, Pv = _d_uv_d_pc(p_c, fx, fy)
+    inv_z = 1.0 / p_c[..., 2]
+    zero = jnp.zeros_like(inv_z)
     # u_r = u − bf/z  ⇒  ∂u_r/∂p_c = ∂u/∂p_c + (0, 0, bf/z²)
-    row = J2[0] + jnp.stack([jnp.zeros_like(inv_z), jnp.zeros_like(inv_z), bf * inv_z * inv_z])
-    J_proj = jnp.concatenate([J2, row[None]], axis=0)
-    return J_proj @ _d_pc_d_pose(p_c), J_proj @ R_c_w
+    return _chain([Pu, Pv, Pu + jnp.stack([zero, zero, bf * inv_z * inv_z], -1)], p_c, R_c_w)

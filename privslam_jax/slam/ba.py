@@ -48,6 +48,7 @@ import numpy as np
 from flax import struct
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from privslam_jax.geometry.projection import pinhole, pinhole_stereo, reprojection_jacobians, stereo_jacobians
 from privslam_jax.solvers.implicit import implicit_argmin
 from privslam_jax.solvers.lm import LMParams, SolveSummary, levenberg_marquardt
 from privslam_jax.solvers.robust import huber_rho, huber_weight
@@ -123,34 +124,18 @@ def _project(
 ) -> tuple[Float[Array, "O 3"], Float[Array, "O K"]]:
     """Camera-frame points and their projections ``(u, v)``, or ``(u, v, u_r)`` when ``stereo``."""
     p_c = jnp.sum(R * X[:, None, :], axis=2) + t
-    inv_z = 1.0 / p_c[:, 2]
-    u = K[:, 0] * p_c[:, 0] * inv_z + K[:, 2]
-    rows = [u, K[:, 1] * p_c[:, 1] * inv_z + K[:, 3]]
     if stereo:
-        rows.append(u - K[:, 0] * K[:, 4] * inv_z)
-    return p_c, jnp.stack(rows, axis=1)
+        return p_c, pinhole_stereo(p_c, K[:, 0], K[:, 1], K[:, 2], K[:, 3], K[:, 0] * K[:, 4])
+    return p_c, pinhole(p_c, K[:, 0], K[:, 1], K[:, 2], K[:, 3])
 
 
 def _jacobians(
     p_c: Float[Array, "O 3"], R: Float[Array, "O 3 3"], K: Float[Array, "O 5"], stereo: bool = False
 ) -> tuple[Float[Array, "O K 6"], Float[Array, "O K 3"]]:
-    """Elementwise (vectorisable) form of :func:`~privslam_jax.geometry.projection.reprojection_jacobians`
-    (``stereo``: of :func:`~privslam_jax.geometry.projection.stereo_jacobians`, third row ``∂u_r``)."""
-    x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
-    iz = 1.0 / z
-    fx, fy = K[:, 0], K[:, 1]
-    zero = jnp.zeros_like(x)
-    # d(u,v)/d p_c
-    Pu = jnp.stack([fx * iz, zero, -fx * x * iz * iz], -1)  # (O, 3)
-    Pv = jnp.stack([zero, fy * iz, -fy * y * iz * iz], -1)
-    P = [Pu, Pv]
-    if stereo:  # u_r = u − bf/z  ⇒  ∂u_r/∂p_c = ∂u/∂p_c + (0, 0, bf/z²)
-        P.append(Pu + jnp.stack([zero, zero, fx * K[:, 4] * iz * iz], -1))
-    Jp = jnp.stack([jnp.sum(Pr[:, :, None] * R, 1) for Pr in P], 1)  # (O, K, 3)
-
-    # d p_c / d(ρ, ω) = [I, −[p_c]×] and rowᵀ(−[p]×) = (p × row)ᵀ
-    Jc = jnp.stack([jnp.concatenate([Pr, jnp.cross(p_c, Pr)], -1) for Pr in P], 1)
-    return Jc, Jp
+    """Per-observation Jacobians (:mod:`privslam_jax.geometry.projection`) w.r.t. the camera and the point."""
+    if stereo:
+        return stereo_jacobians(p_c, R, K[:, 0], K[:, 1], K[:, 0] * K[:, 4])
+    return reprojection_jacobians(p_c, R, K[:, 0], K[:, 1])
 
 
 class _Obs(struct.PyTreeNode):

@@ -32,6 +32,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from privslam_jax.geometry.projection import pinhole
 from privslam_jax.slam.ba import BAConfig, bundle_adjust
 from privslam_jax.slam.frontend import TH_LOW, Features, match_descriptors, search_by_projection
 from privslam_jax.types import Camera, PointCloud
@@ -92,9 +93,8 @@ def project(T_c_w: np.ndarray, xyz: np.ndarray, camera: Camera) -> tuple[np.ndar
     """Pixels ``(M, 2)`` and depths ``(M,)`` of world points in a camera."""
     p = xyz @ T_c_w[:3, :3].T + T_c_w[:3, 3]
     z = p[:, 2]
-    zs = np.where(np.abs(z) > 1e-9, z, 1e-9)
-    uv = np.stack([camera.fx * p[:, 0] / zs + camera.cx, camera.fy * p[:, 1] / zs + camera.cy], axis=1)
-    return uv, z
+    safe = np.concatenate([p[:, :2], np.where(np.abs(z) > 1e-9, z, 1e-9)[:, None]], axis=1)
+    return pinhole(safe, camera.fx, camera.fy, camera.cx, camera.cy), z
 
 
 class _Grow:

@@ -230,9 +230,9 @@ def _residuals(
     p_c = world_to_camera(T_c_w, points_w)
     fx, fy, cx, cy, b = (intrinsics[k] for k in range(5))
     if stereo is None:
-        pred = jax.vmap(pinhole, in_axes=(0, None, None, None, None))(p_c, fx, fy, cx, cy)
+        pred = pinhole(p_c, fx, fy, cx, cy)
         return p_c, pred - obs
-    pred = jax.vmap(pinhole_stereo, in_axes=(0, None, None, None, None, None))(p_c, fx, fy, cx, cy, fx * b)
+    pred = pinhole_stereo(p_c, fx, fy, cx, cy, fx * b)
     e = pred - obs
     return p_c, e.at[:, 2].multiply(stereo.astype(e.dtype))
 
@@ -384,9 +384,9 @@ def _refine_jit(
         fx, fy, bf = intrinsics[0], intrinsics[1], intrinsics[0] * intrinsics[4]
         R = T.rotation().as_matrix()
         if stereo is None:
-            J, _ = jax.vmap(reprojection_jacobians, in_axes=(0, None, None, None))(p_c, R, fx, fy)
+            J, _ = reprojection_jacobians(p_c, R, fx, fy)
         else:
-            J, _ = jax.vmap(stereo_jacobians, in_axes=(0, None, None, None, None))(p_c, R, fx, fy, bf)
+            J, _ = stereo_jacobians(p_c, R, fx, fy, bf)
             J = J.at[:, 2].multiply(stereo.astype(dtype)[:, None])
         w = jnp.where(mask & front, huber_weight(s, delta) * inv_sigma2, 0.0)
         H = jnp.einsum("n,nki,nkj->ij", w, J, J)
