@@ -63,7 +63,7 @@ class Mutant:
 
 # Test selections (fast, discriminating files first: pytest runs with -x).
 ALIGN = ("tests/test_align.py", "tests/test_trajectory_metrics.py")
-PROJ = ("tests/test_projection.py", "tests/test_refine.py")
+PROJ = ("tests/test_projection.py", "tests/test_refine.py", "tests/test_ba.py")
 PLUCKER = ("tests/test_lift.py::test_plucker_helpers_against_numpy", "tests/test_gradient_attack.py")
 BA = ("tests/test_ba.py", "tests/test_ba_step.py", "tests/test_degenerate_solvers.py")
 REFINE = ("tests/test_refine.py", "tests/test_degenerate_solvers.py")
@@ -138,18 +138,18 @@ MUTANTS: tuple[Mutant, ...] = (
            ALIGN),
     # ---- projection / Plücker helpers -------------------------------------------------------
     Mutant("proj-rotation-jacobian-sign", _PR,
-           "return jnp.concatenate([jnp.eye(3, dtype=p_c.dtype), -skew(p_c)], axis=1)",
-           "return jnp.concatenate([jnp.eye(3, dtype=p_c.dtype), skew(p_c)], axis=1)",
-           "∂p_c/∂ω = +[p_c]× instead of −[p_c]× (left-perturbation Jacobian sign)",
+           "J_pose = jnp.stack([jnp.concatenate([P, jnp.cross(p_c, P)], -1) for P in rows], -2)",
+           "J_pose = jnp.stack([jnp.concatenate([P, jnp.cross(P, p_c)], -1) for P in rows], -2)",
+           "∂r/∂ω row (P × p_c) instead of (p_c × P): +[p_c]× instead of −[p_c]× (left-perturbation sign)",
            PROJ),
     Mutant("proj-stereo-jacobian-sign", _PR,
-           "jnp.zeros_like(inv_z), bf * inv_z * inv_z])",
-           "jnp.zeros_like(inv_z), -bf * inv_z * inv_z])",
+           "return _chain([Pu, Pv, Pu + jnp.stack([zero, zero, bf * inv_z * inv_z], -1)], p_c, R_c_w)",
+           "return _chain([Pu, Pv, Pu + jnp.stack([zero, zero, -bf * inv_z * inv_z], -1)], p_c, R_c_w)",
            "∂u_r/∂z: +bf/z² term with the wrong sign",
            PROJ),
     Mutant("proj-stereo-disparity-sign", _PR,
-           "return jnp.stack([u, fy * p_c[1] * inv_z + cy, u - bf * inv_z])",
-           "return jnp.stack([u, fy * p_c[1] * inv_z + cy, u + bf * inv_z])",
+           "return _xp(p_c).stack([u, fy * p_c[..., 1] * inv_z + cy, u - bf * inv_z], axis=-1)",
+           "return _xp(p_c).stack([u, fy * p_c[..., 1] * inv_z + cy, u + bf * inv_z], axis=-1)",
            "right-image u_r = u + bf/z (disparity sign)",
            PROJ),
     Mutant("plucker-closest-approach-sign", _PL,
@@ -184,9 +184,9 @@ MUTANTS: tuple[Mutant, ...] = (
            "3×3 adjugate inverse: cofactor (0,1) with the wrong sign",
            BA),
     Mutant("ba-jacobian-cross-order", _BA,
-           "Jc = jnp.stack([jnp.concatenate([Pr, jnp.cross(p_c, Pr)], -1) for Pr in P], 1)",
-           "Jc = jnp.stack([jnp.concatenate([Pr, jnp.cross(Pr, p_c)], -1) for Pr in P], 1)",
-           "camera rotation Jacobian row (Pr × p) instead of (p × Pr)",
+           "return stereo_jacobians(p_c, R, K[:, 0], K[:, 1], K[:, 0] * K[:, 4])",
+           "return stereo_jacobians(p_c, R, K[:, 0], K[:, 1], K[:, 4])",
+           "BA's stereo Jacobians with the baseline in metres instead of bf = fx·b (the kernels are shared: proj-*)",
            BA),
     Mutant("ba-huber-weight", _BA,
            "w = jnp.where(front, obs.isg * huber_weight(s, delta), 0.0)",
@@ -204,8 +204,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "Schur pair list starts at (o, o) instead of (o, o+1): off by one",
            BA),
     Mutant("ba-stereo-baseline-not-bf", _BA,
-           "rows.append(u - K[:, 0] * K[:, 4] * inv_z)",
-           "rows.append(u - K[:, 4] * inv_z)",
+           "return p_c, pinhole_stereo(p_c, K[:, 0], K[:, 1], K[:, 2], K[:, 3], K[:, 0] * K[:, 4])",
+           "return p_c, pinhole_stereo(p_c, K[:, 0], K[:, 1], K[:, 2], K[:, 3], K[:, 4])",
            "stereo projection u_r = u − b/z (baseline in metres instead of bf = fx·b)",
            BA),
     Mutant("ba-cost-not-halved", _BA,

@@ -60,6 +60,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from privslam_jax._xla import configure_xla  # noqa: E402
+from privslam_jax.data.files import write_atomic  # noqa: E402
 
 configure_xla()
 
@@ -335,12 +336,48 @@ def _privacy_lines(rows: list[tuple[str, str, list[dict]]]) -> list[str]:
     return lines + [""] if found else []
 
 
-def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path) -> str:
+def _head_to_head_lines(rows: list[tuple[str, str, list[dict]]]) -> list[str]:
+    """Which filter wins: the headline ATE of two filters on the same sequence, mode, feature masking
+    and RANSAC seed, paired; median difference, how often each is better, Wilcoxon's signed-rank test."""
+    from itertools import combinations
+
+    from scipy.stats import wilcoxon
+
+    groups: dict[tuple[str, str, bool], dict[str, dict[int, float]]] = {}
+    for _, mode, runs in rows:
+        key = "ate_sim3" if mode == "mono" else "ate_se3"
+        for r in runs:
+            if r["filter"] != "none" and "error" not in r:
+                groups.setdefault((r["base"], mode, bool(r.get("masked"))), {}).setdefault(r["filter"], {})[r["seed"]] = r[key]
+    out = []
+    for (base, mode, masked), by_filter in groups.items():
+        for a, b in combinations(sorted(by_filter), 2):
+            seeds = sorted(set(by_filter[a]) & set(by_filter[b]))
+            if len(seeds) < 5:
+                continue
+            d = np.asarray([by_filter[a][k] - by_filter[b][k] for k in seeds])
+            p = float(wilcoxon(d).pvalue) if np.any(d != 0) else 1.0
+            winner = (a if np.median(d) < 0 else b) if p < 0.05 else "neither (p ≥ 0.05)"
+            out.append(f"| {base} | {mode}{', masked features' if masked else ''} | {a} − {b} | {len(seeds)} | "
+                       f"{np.median(d):+.3f} [{d.min():+.3f}, {d.max():+.3f}] | {int(np.sum(d < 0))} / {int(np.sum(d > 0))} | "
+                       f"{p:.3f} | {winner} |")
+    if not out:
+        return []
+    return ["## Which filter wins", "",
+            "Headline ATE of filter A minus filter B on the same sequence, mode, feature masking and RANSAC "
+            "seed (negative: A is more accurate); median [min, max] over the seeds, seeds where A / B is "
+            "better, two-sided Wilcoxon signed-rank p (scipy); a winner is named when p < 0.05.", "",
+            "| sequence | mode | A − B | seeds | Δ ATE (m) | A better / B better | Wilcoxon p | winner |",
+            "|---|---|---|---|---|---|---|---|", *out, ""]
+
+
+def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path, command: str = "python experiments/table4_ate.py --jobs 2") -> str:
+    kitti_seeds = sorted({r["seed"] for name, _, runs in rows if name.startswith("KITTI") for r in runs}) or [0]
     lines = [
         "# Table 4 — SLAM trajectory accuracy on original and privacy-filtered frames",
         "",
-        "Written by `python experiments/table4_ate.py --jobs 2` (see its header).  Median [min, max] over "
-        "the runs of a row (KITTI: RANSAC seeds 0-4 on one sequence; synthetic: worlds 0-4, one run each); "
+        f"Written by `{command}` (see its header).  Median [min, max] over "
+        f"the runs of a row (KITTI: RANSAC seeds {kitti_seeds[0]}-{kitti_seeds[-1]} on one sequence; synthetic: one world per run, one run each); "
         "ATE in metres (percentage: median over runs of ATE / that run's path length), RPE per frame "
         "(translation m, rotation deg; Sim(3)-aligned for mono).  The headline metric is SE(3) ATE for "
         "stereo/RGB-D and Sim(3) ATE for mono.  Rows named '<method> filter' ran on frames whose detected "
@@ -369,6 +406,7 @@ def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path) -> str:
               "RGB-D ≤ 0.5 %, mono Sim(3) ≤ 1 %.  track ms: median per-frame extraction + tracking "
               "(no mapping) on the machine and load of the run.", "",
               *_privacy_lines(rows),
+              *_head_to_head_lines(rows),
               "## Every run", "",
               "| sequence | filter | mode | RANSAC seed | tracked | path m | ATE SE(3) m | ATE Sim(3) m | keyframes | events |",
               "|---|---|---|---|---|---|---|---|---|---|"]
@@ -383,7 +421,7 @@ def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path) -> str:
                          f"{r['path']:.1f} | {r['ate_se3']:.3f} | {r['ate_sim3']:.3f} | {r['keyframes']} | {r['events']} |")
     text = "\n".join(lines + [""])
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
+    write_atomic(path, text)
     return text
 
 
@@ -421,7 +459,8 @@ def main() -> None:
     tasks += [] if a.skip_synth else _synth_tasks(cfg, a.synth_dir)
     if not tasks:
         raise SystemExit("nothing to run: KITTI needs ../shared, and --skip-synth was given")
-    print(write_markdown(_rows(_run_tasks(tasks, a.jobs, a.resume)), ROOT / cfg.out))
+    command = "python experiments/table4_ate.py " + " ".join(sys.argv[1:])
+    print(write_markdown(_rows(_run_tasks(tasks, a.jobs, a.resume)), ROOT / cfg.out, command.strip()))
 
 if __name__ == "__main__":
     main()

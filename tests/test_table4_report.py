@@ -47,3 +47,29 @@ def test_privacy_section_pairs_runs_by_mode_and_seed(tmp_path):
         rel = 100 * d / np.asarray([orig[mode, s][k] for s in seeds])
         assert cells[8].startswith(f"{np.median(rel):+.1f} %")
     assert "crashed: RuntimeError: boom" in text
+
+
+def test_head_to_head_names_the_winner_only_when_wilcoxon_says_so(tmp_path):
+    from scipy.stats import wilcoxon
+
+    t4 = _load()
+    rng = np.random.default_rng(1)
+    base = "KITTI seq1 (51 frames)"
+    a = rng.uniform(0.05, 0.15, 8)
+    b_far = a + rng.uniform(0.01, 0.05, 8)  # telea always worse than edgeconnect
+    noise = a + rng.normal(0, 0.02, 8)  # "black": no consistent difference
+    results = [_run(base, base, "none", "mono", s, 1.0, 0.1) for s in range(8)]
+    for name, v in (("edgeconnect", a), ("telea", b_far), ("black", noise)):
+        results += [_run(f"{base}, {name} filter", base, name, "mono", s, 1.0, float(v[s])) for s in range(8)]
+    text = t4.write_markdown(t4._rows(results), tmp_path / "t4.md")
+    rows = {ln.split("|")[3].strip(): [c.strip() for c in ln.split("|")[1:-1]]
+            for ln in text.split("## Which filter wins")[1].split("## Every run")[0].splitlines() if ln.startswith(f"| {base}")}
+    d = a - b_far
+    cells = rows["edgeconnect − telea"]
+    assert cells[3] == "8" and cells[5] == "8 / 0"
+    assert cells[4] == f"{np.median(d):+.3f} [{d.min():+.3f}, {d.max():+.3f}]"
+    assert cells[6] == f"{wilcoxon(d).pvalue:.3f}" and cells[7] == "edgeconnect"
+    d2 = noise - a  # "black − edgeconnect" (alphabetical order)
+    cells = rows["black − edgeconnect"]
+    assert cells[6] == f"{wilcoxon(d2).pvalue:.3f}"
+    assert cells[7] == ("neither (p ≥ 0.05)" if wilcoxon(d2).pvalue >= 0.05 else ("black" if np.median(d2) < 0 else "edgeconnect"))
