@@ -26,7 +26,7 @@ def test_pair_of_lines_goes_to_closest_approach():
         dd = np.asarray(lines.directions)
         a = np.cross(dd, np.asarray(lines.moments))
         cfg = GradientAttackConfig(num_neighbours=1, sigma=1e4, rtol=1e-10, atol=1e-10, max_steps=500)
-        _, t = gradient_attack(lines, cfg, t0=jnp.zeros(2))
+        t = gradient_attack(lines, cfg, t0=jnp.zeros(2)).offsets
         t1, t2 = closest_approach(jnp.asarray(a[0]), jnp.asarray(dd[0]), jnp.asarray(a[1]), jnp.asarray(dd[1]))
     np.testing.assert_allclose(np.asarray(t), [float(t1), float(t2)], atol=1e-5)
 
@@ -38,7 +38,7 @@ def test_recovers_exact_intersections():
     p = np.repeat(centres, 4, axis=0)
     with jax.enable_x64(True):
         lines = _lines(p, rng.normal(size=(120, 3)))
-        rec, _ = gradient_attack(lines, GradientAttackConfig(num_neighbours=3, sigma=0.5, max_steps=1000, rtol=1e-9, atol=1e-9))
+        rec = gradient_attack(lines, GradientAttackConfig(num_neighbours=3, sigma=0.5, max_steps=1000, rtol=1e-9, atol=1e-9)).points
     err = np.linalg.norm(np.asarray(rec) - p, axis=1)
     assert np.median(err) < 1e-3 and np.mean(err < 1e-2) > 0.9
 

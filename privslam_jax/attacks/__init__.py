@@ -1,10 +1,19 @@
 """privslam_jax.attacks."""
 
-from privslam_jax.attacks.gradient import GradientAttackConfig, consistency_energy, gradient_attack, line_neighbours
+from privslam_jax.attacks.gradient import (
+    GradientAttackConfig,
+    GradientAttackResult,
+    consistency_energy,
+    gradient_attack,
+    gradient_attack_core,
+    line_neighbours,
+)
 from privslam_jax.attacks.line2point import (
     Line2PointConfig,
     get_peak,
     line2point,
+    line2point_core,
+    line2point_offsets,
     num_coarse_neighbours,
     select_smallest,
     sort_values,

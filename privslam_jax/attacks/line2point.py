@@ -49,6 +49,23 @@ result equals the numpy reference (``tests/line2point_reference.py``) to 1e-6 in
 Ties between equal distances go to the lower index (``top_k`` is stable), as a stable
 ``argsort``'s first ``k`` in the reference.
 Computation runs in the dtype of the lines (``float64`` under ``jax.enable_x64``).
+
+**Differentiable core.**  :func:`line2point` is the host entry point: it checks the input (shape,
+NaN/inf, zero directions: ``ValueError``) and runs row blocks from host threads.  Two pure
+functions without host checks or threads can be jitted and differentiated:
+
+* :func:`line2point_offsets` — the continuous part: the peak offset of every line from a *given*
+  neighbour set (the closest-approach estimates and the Kuiper peak);
+* :func:`line2point_core` — the whole attack as ``lax.map`` passes over the rows in one
+  traceable function (the numbers of :func:`line2point` up to rounding: 1e-14 in the tests).
+
+The discrete choices are piecewise constant in the lines and are treated as constants
+(``lax.stop_gradient``): the coarse and refinement neighbour sets, the l2p ∩ p2l mask, and the
+Kuiper interval of the peak finder together with the sorted position of the median.  The
+gradient is that of the offsets with those choices frozen, i.e. of the closest-approach
+estimates that the median picks (exact almost everywhere; at a tie or a switch of a discrete
+choice the result is one of the one-sided derivatives).  ``tests/test_attack_gradients.py``
+checks ``jax.jit(jax.grad(...))`` of both against central finite differences.
 """
 
 from __future__ import annotations
@@ -64,9 +81,19 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Bool, Float, Int
 
+from privslam_jax.geometry.plucker import safe_norm
 from privslam_jax.types import LineCloud
 
-__all__ = ["Line2PointConfig", "line2point", "get_peak", "select_smallest", "sort_values", "num_coarse_neighbours"]
+__all__ = [
+    "Line2PointConfig",
+    "line2point",
+    "line2point_core",
+    "line2point_offsets",
+    "get_peak",
+    "select_smallest",
+    "sort_values",
+    "num_coarse_neighbours",
+]
 
 _EPS = 1e-6  # the authors' ``10e-7``
 
@@ -164,12 +191,34 @@ def _materialise(x: Array, runtime_zero: Array) -> Array:
 def get_peak(
     estimates: Float[Array, " K"], valid: Bool[Array, " K"], config: Line2PointConfig = Line2PointConfig()
 ) -> Float[Array, ""]:
-    """The authors' ``get_peak`` on the valid entries of ``estimates`` (see module docstring)."""
-    dt = estimates.dtype
+    """The authors' ``get_peak`` on the valid entries of ``estimates`` (see module docstring).
+
+    Values are sorted with :func:`sort_values` (fast, not differentiable); the differentiable
+    twin used by :func:`line2point_core` is :func:`_peak_differentiable` (same value)."""
+    s = sort_values(jnp.where(valid & ~jnp.isnan(estimates), estimates, jnp.inf))
+    return _peak_of_sorted(s, jnp.sum(valid.astype(jnp.int32)), config)
+
+
+def _peak_differentiable(
+    estimates: Float[Array, " K"], valid: Bool[Array, " K"], config: Line2PointConfig = Line2PointConfig()
+) -> Float[Array, ""]:
+    """:func:`get_peak` with a gradient: the values are put in order by a gather with the
+    (constant) ``argsort`` permutation, so the median of the surviving interval is differentiable
+    in the estimates it picks; the interval itself is constant (module docstring)."""
+    x = jnp.where(valid & ~jnp.isnan(estimates), estimates, jnp.inf)
+    order = jnp.argsort(lax.stop_gradient(x), stable=True)
+    return _peak_of_sorted(x[order], jnp.sum(valid.astype(jnp.int32)), config)
+
+
+def _peak_of_sorted(s: Float[Array, " K"], n: Int[Array, ""], config: Line2PointConfig) -> Float[Array, ""]:
+    """The peak of the ``n`` valid values at the start of ascending ``s`` (``+inf`` after them).
+
+    The Kuiper interval search sees ``lax.stop_gradient(s)`` (piecewise constant: no gradient,
+    and ``lax.while_loop`` has no reverse mode); the median of the interval reads ``s`` itself."""
+    dt = s.dtype
     nb = config.num_bins
     uni = jnp.asarray(_uniform_cdf(nb), dt)
-    s = sort_values(jnp.where(valid & ~jnp.isnan(estimates), estimates, jnp.inf))
-    n = jnp.sum(valid.astype(jnp.int32))
+    sc = lax.stop_gradient(s)
     trim = config.num_trim
     ks = jnp.arange(nb)
 
@@ -184,7 +233,7 @@ def get_peak(
     def body(state):
         start, end, _, _ = state
         m = end - start
-        lo, hi = s[start], s[end - 1]
+        lo, hi = sc[start], sc[end - 1]
         same = lo == hi
         lo, hi = jnp.where(same, lo - 0.5, lo), jnp.where(same, hi + 0.5, hi)
         # optimization_barrier: XLA would turn x / c into x * (1/c), which rounds differently
@@ -193,14 +242,14 @@ def get_peak(
         # numpy.linspace(lo, hi, nb + 1)[:nb] = fl(fl(k·step) + lo); without the bit round trip
         # XLA-CPU fuses the two into an FMA, and offsets lying exactly on an edge change bins.
         edges = _materialise(ks.astype(dt) * step, jnp.minimum(start, 0)) + lo
-        cnt = jnp.clip(jnp.searchsorted(s, edges, side="left"), start, end) - start
+        cnt = jnp.clip(jnp.searchsorted(sc, edges, side="left"), start, end) - start
         hist_cs = cnt.astype(dt) / lax.optimization_barrier(jnp.broadcast_to(m.astype(dt), cnt.shape))
         diff = hist_cs - uni[:nb]
         kmin = jnp.argmin(diff[: int(0.9 * nb)])
         kmax = jnp.argmax(jnp.where(ks >= kmin, diff, -jnp.inf))
         kv = hist_cs[kmax] + uni[kmin] - hist_cs[kmin] - uni[kmax]
-        new_start = jnp.clip(jnp.searchsorted(s, edges[kmin], side="right"), start, end)
-        new_end = jnp.maximum(jnp.clip(jnp.searchsorted(s, edges[kmax], side="left"), start, end), new_start)
+        new_start = jnp.clip(jnp.searchsorted(sc, edges[kmin], side="right"), start, end)
+        new_end = jnp.maximum(jnp.clip(jnp.searchsorted(sc, edges[kmax], side="left"), start, end), new_start)
         # An interval that did not shrink would repeat forever (all offsets equal: issue 15): stop.
         # Every other step drops at least one offset, so the loop ends after at most K steps.
         return new_start, new_end, kv, (new_start != start) | (new_end != end)
@@ -215,9 +264,9 @@ def _estimates(a_i, d_i, a_j, d_j):
     """Offsets along line i of the closest approach to lines j (authors' ``calc_estimate_from_line``)."""
     a_i, d_i = a_i[None, :], d_i[None, :]
     n = jnp.cross(d_i, d_j)
-    n = n / (jnp.linalg.norm(n, axis=-1, keepdims=True) + _EPS)
+    n = n / (safe_norm(n, keepdims=True) + _EPS)  # safe_norm: the line itself (n = 0) is a coarse neighbour
     n2 = jnp.cross(n, d_j)
-    n2 = n2 / (jnp.linalg.norm(n2, axis=-1, keepdims=True) + _EPS)
+    n2 = n2 / (safe_norm(n2, keepdims=True) + _EPS)
     return jnp.sum((a_j - a_i) * n2, axis=-1) / (jnp.sum(d_i * n2, axis=-1) + _EPS)
 
 
@@ -244,14 +293,43 @@ def _point_line_key(vT, dT):
     return cx * cx + cy * cy + cz * cz
 
 
+def _anchors(lines: LineCloud) -> tuple[Float[Array, "N 3"], Float[Array, "N 3"]]:
+    """``(a, d)``: unit directions and anchors ``a = d × m`` (closest points to the origin)."""
+    d = jnp.asarray(lines.directions)
+    d = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+    a = jnp.cross(d, jnp.asarray(lines.moments, d.dtype))
+    return a, d
+
+
+def _coarse_select(i, a, d, aT, dT, k: int):
+    """Coarse neighbour set of line ``i``: the ``k`` nearest lines by the authors' distance."""
+    return select_smallest(_line_line_dist(a[i], d[i], aT, dT), k)
+
+
+def _refine_select(i, a, d, pe, aT, dT, peT, k1: int, k2: int, config: Line2PointConfig):
+    """Refinement neighbour set of line ``i`` and its mask: the l2p set, masked to l2p ∩ p2l
+    when that has more than ``min_intersection`` members."""
+    l2p = select_smallest(_point_line_key(peT - a[i][:, None], d[i][:, None]), k1)
+    p2l = select_smallest(_point_line_key(aT - pe[i][:, None], dT), k2)
+    member = jnp.any(l2p[:, None] == p2l[None, :], axis=1)
+    use = jnp.where(jnp.sum(member.astype(jnp.int32)) > config.min_intersection, member, True)
+    return l2p, use
+
+
+def _row_offset(i, a, d, nb, valid, config: Line2PointConfig, peak):
+    """Offset of line ``i`` from its neighbours ``nb`` (entries with ``valid``): the peak of the
+    closest-approach estimates."""
+    est = _estimates(a[i], d[i], a[nb], d[nb])
+    return peak(est, valid, config)
+
+
 @partial(jax.jit, static_argnames=("k", "config"))
 def _coarse_rows(rows, a, d, *, k: int, config: Line2PointConfig):
     aT, dT = a.T, d.T
 
     def one(i):
-        nn = select_smallest(_line_line_dist(a[i], d[i], aT, dT), k)
-        est = _estimates(a[i], d[i], a[nn], d[nn])
-        return get_peak(est, jnp.ones(est.shape, bool), config)
+        nn = _coarse_select(i, a, d, aT, dT, k)
+        return _row_offset(i, a, d, nn, jnp.ones(nn.shape, bool), config, get_peak)
 
     return lax.map(one, rows, batch_size=config.chunk_size)
 
@@ -265,14 +343,77 @@ def _refine_rows(rows, a, d, t, *, config: Line2PointConfig):
     aT, dT, peT = a.T, d.T, pe.T
 
     def one(i):
-        l2p = select_smallest(_point_line_key(peT - a[i][:, None], d[i][:, None]), k1)
-        p2l = select_smallest(_point_line_key(aT - pe[i][:, None], dT), k2)
-        member = jnp.any(l2p[:, None] == p2l[None, :], axis=1)
-        use = jnp.where(jnp.sum(member.astype(jnp.int32)) > config.min_intersection, member, True)
-        est = _estimates(a[i], d[i], a[l2p], d[l2p])
-        return get_peak(est, use, config)
+        l2p, use = _refine_select(i, a, d, pe, aT, dT, peT, k1, k2, config)
+        return _row_offset(i, a, d, l2p, use, config, get_peak)
 
     return lax.map(one, rows, batch_size=config.chunk_size)
+
+
+def _map_rows(fn, n: int, chunk_size: int):
+    """``fn`` on rows ``0 … n−1`` by ``lax.map`` in blocks of ``chunk_size``; the rows are padded
+    with row ``n − 1`` to whole blocks, so the body is compiled once (no remainder branch)."""
+    step = max(1, min(chunk_size, n))
+    rows = jnp.minimum(jnp.arange(-(-n // step) * step), n - 1)
+    return jax.tree.map(lambda x: x[:n], lax.map(fn, rows, batch_size=step))
+
+
+def _offsets(a, d, neighbours, valid, config: Line2PointConfig):
+    def one(i):
+        return _row_offset(i, a, d, neighbours[i], valid[i], config, _peak_differentiable)
+
+    return _map_rows(one, a.shape[0], config.chunk_size)
+
+
+def line2point_offsets(
+    lines: LineCloud,
+    neighbours: Int[Array, "N K"],
+    valid: Bool[Array, "N K"] | None = None,
+    config: Line2PointConfig = Line2PointConfig(),
+) -> Float[Array, " N"]:
+    """The continuous part of Line2Point: the offset ``t_i`` of every line from a given
+    neighbour set (pure and jit-able, differentiable in ``lines``; no input checks).
+
+    ``t_i`` is the Kuiper peak (:func:`get_peak`) of the closest-approach offsets along line
+    ``i`` of the lines ``neighbours[i, j]`` with ``valid[i, j]`` (all, when ``valid`` is
+    ``None``).  The peak's interval and the sorted position of its median are piecewise
+    constant and are held constant (``lax.stop_gradient``): the gradient is that of the
+    estimates the median picks.  Same values as the public attack for the same neighbour sets.
+    """
+    a, d = _anchors(lines)
+    nb = jnp.asarray(neighbours)
+    ok = jnp.ones(nb.shape, bool) if valid is None else jnp.asarray(valid, bool)
+    return _offsets(a, d, nb, ok, config)
+
+
+def line2point_core(
+    lines: LineCloud, config: Line2PointConfig = Line2PointConfig()
+) -> tuple[Float[Array, "N 3"], Float[Array, " N"]]:
+    """Line2Point as one pure, jit-able and differentiable function: ``(points, offsets)`` as
+    :func:`line2point` returns them, without its input checks, host threads or progress bar.
+
+    The neighbour sets (coarse: the ``k`` nearest lines; refinement: l2p, p2l and their
+    intersection) are chosen on ``lax.stop_gradient`` copies of the lines, so they are
+    constants of the gradient, as are the peak finder's interval and median position (module
+    docstring); the offsets are then :func:`line2point_offsets` of those sets.  Memory
+    ``O(N·k)`` for the neighbour sets (``int32``) plus ``O(chunk_size · N)`` for the search.
+    Call :func:`line2point` for untrusted input: NaN lines here give NaN points, not an error.
+    """
+    a, d = _anchors(lines)
+    a0, d0 = lax.stop_gradient(a), lax.stop_gradient(d)
+    n = a.shape[0]
+    k = num_coarse_neighbours(n, config)
+    aT, dT = a0.T, d0.T
+    nb = _map_rows(lambda i: _coarse_select(i, a0, d0, aT, dT, k), n, config.chunk_size)
+    t = _offsets(a, d, nb, jnp.ones(nb.shape, bool), config)
+    k1, k2 = min(config.refine_l2p, n), min(config.refine_p2l, n)
+    for _ in range(config.num_refine_iterations):
+        pe = a0 + lax.stop_gradient(t)[:, None] * d0
+        peT = pe.T
+        nb, use = _map_rows(
+            lambda i, pe=pe, peT=peT: _refine_select(i, a0, d0, pe, aT, dT, peT, k1, k2, config), n, config.chunk_size
+        )
+        t = _offsets(a, d, nb, use, config)
+    return a + t[:, None] * d, t
 
 
 def _num_threads(config: Line2PointConfig) -> int:
@@ -326,12 +467,17 @@ def line2point(
     lines: LineCloud, config: Line2PointConfig = Line2PointConfig(), *, progress: bool = False
 ) -> tuple[Float[Array, "N 3"], Float[Array, " N"]]:
     """Recover one point per line.  Returns ``(points, offsets)`` with ``points = a + t·d``,
-    ``a = d × m`` the anchor (closest point to the origin) and ``t`` the offsets."""
-    d = jnp.asarray(lines.directions)
-    if d.ndim != 2 or d.shape[1] != 3 or d.shape[0] < 2:
-        raise ValueError(f"Line2Point needs at least 2 lines of shape (N, 3), got {tuple(d.shape)}")
-    d = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
-    a = jnp.cross(d, jnp.asarray(lines.moments, d.dtype))
+    ``a = d × m`` the anchor (closest point to the origin) and ``t`` the offsets.
+
+    Host entry point: checks the lines (``ValueError`` on fewer than 2, a wrong shape, NaN/inf or
+    zero directions), then runs the rows in blocks from host threads.  Not traceable; under
+    ``jit``/``grad`` use :func:`line2point_core` (the same numbers up to rounding)."""
+    shape = tuple(np.shape(lines.directions))
+    if len(shape) != 2 or shape[1] != 3 or shape[0] < 2:
+        raise ValueError(f"Line2Point needs at least 2 lines of shape (N, 3), got {shape}")
+    if tuple(np.shape(lines.moments)) != shape:
+        raise ValueError(f"line moments must have the shape of the directions {shape}, got {tuple(np.shape(lines.moments))}")
+    a, d = _anchors(lines)
     if not bool(jnp.all(jnp.isfinite(a)) & jnp.all(jnp.isfinite(d))):
         raise ValueError("line cloud contains NaN/inf or zero directions")
     n = d.shape[0]

@@ -44,8 +44,12 @@ def run(args: argparse.Namespace) -> int:
             pts, _ = line2point(lines, Line2PointConfig(num_refine_iterations=args.refine), progress=True)
         else:
             with tqdm(total=1, desc="gradient attack", unit="solve") as bar:
-                pts, _ = gradient_attack(lines, GradientAttackConfig())
+                result = gradient_attack(lines, GradientAttackConfig(), throw=False)
                 bar.update(1)
+            pts = result.points
+            if not result.successful:  # the attack's best effort is still an attack: keep it, say so
+                print(f"note: the gradient attack's solve did not converge ({result.message()}); the points are "
+                      "its last iterate")
         pts = jax.block_until_ready(pts)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         save_point_cloud(args.out, PointCloud(xyz=pts), binary=not args.ascii)

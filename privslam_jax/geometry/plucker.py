@@ -10,7 +10,10 @@ A line through point ``p`` with unit direction ``d`` has moment ``m = p × d`` (
 * closest approach of ``x = p₁ + t₁d₁`` and ``y = p₂ + t₂d₂``: with ``w = p₁ − p₂``,
   ``b = d₁·d₂``, ``t₁ = (b (d₂·w) − d₁·w)/(1 − b²)``, ``t₂ = ((d₂·w) − b (d₁·w))/(1 − b²)``.
 
-All functions work on one line (or pair) and broadcast over leading batch axes.
+All functions work on one line (or pair) and broadcast over leading batch axes.  They are pure
+JAX (no host checks): jit-able and differentiable.  Norms go through :func:`safe_norm`, whose
+gradient at zero is 0 instead of ``jnp.linalg.norm``'s NaN, so a distance that is exactly zero
+(a point on its line, intersecting lines) does not turn a gradient into NaN.
 """
 
 from __future__ import annotations
@@ -26,9 +29,18 @@ __all__ = [
     "point_line_distance",
     "line_line_distance",
     "closest_approach",
+    "safe_norm",
 ]
 
 _PARALLEL_EPS = 1e-12
+
+
+def safe_norm(x: Float[Array, "*b n"], keepdims: bool = False) -> Float[Array, "*b"] | Float[Array, "*b 1"]:
+    """``‖x‖`` over the last axis, equal in value to ``jnp.linalg.norm(x, axis=-1)``, with the
+    subgradient 0 at ``x = 0`` (``jnp.linalg.norm`` gives NaN there, and NaN survives ``where``)."""
+    sq = jnp.sum(x * x, axis=-1, keepdims=keepdims)
+    pos = sq > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
 
 
 def lines_from_points_directions(points: Float[Array, "N 3"], directions: Float[Array, "N 3"]) -> LineCloud:
@@ -44,7 +56,7 @@ def closest_point_to_origin(d: Float[Array, "*b 3"], m: Float[Array, "*b 3"]) ->
 
 def point_line_distance(x: Float[Array, "*b 3"], d: Float[Array, "*b 3"], m: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
     """Distance ``‖x × d − m‖`` from point ``x`` to the line ``(d, m)`` (unit ``d``)."""
-    return jnp.linalg.norm(jnp.cross(x, d) - m, axis=-1)
+    return safe_norm(jnp.cross(x, d) - m)
 
 
 def line_line_distance(
@@ -57,7 +69,7 @@ def line_line_distance(
     recip = jnp.abs(jnp.sum(d1 * m2, axis=-1) + jnp.sum(d2 * m1, axis=-1))
     skew = recip / jnp.sqrt(jnp.where(parallel, 1.0, s2))
     c1, c2 = jnp.cross(d1, m1), jnp.cross(d2, m2)
-    par = jnp.linalg.norm(jnp.cross(d1, c2 - c1), axis=-1)
+    par = safe_norm(jnp.cross(d1, c2 - c1))
     return jnp.where(parallel, par, skew)
 
 

@@ -29,6 +29,15 @@ arrays as before.
 **Keys.** A lift is only as secret as its randomness.  Without a key, the key is drawn from
 the operating system's entropy (``os.urandom``, 64 bits), so two default lifts of the same
 cloud differ; pass :func:`fixed_key` (an explicit seed) only for reproducible experiments.
+
+**Host entry points and differentiable cores.**  :func:`random_lift` and :func:`paired_lift`
+are host functions: they check the points (``ValueError``), merge repeated points and compute
+in float64 numpy.  :func:`random_lift_core` and :func:`paired_lift_core` are the same lifts as
+pure JAX functions of ``(points, key)``: no checks, jit-able, differentiable in the points, in
+the points' dtype.  They do **not** merge repeated points (copies get distinct lines that meet
+at the point), so a published line cloud must come from the host functions; for a cloud without
+repeated points they give the same lines (to rounding).  What is constant for the gradient: the
+random directions, signs and pairing (functions of the key only).
 """
 
 from __future__ import annotations
@@ -38,11 +47,22 @@ import os
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Int
 
+from privslam_jax.geometry.plucker import lines_from_points_directions, safe_norm
 from privslam_jax.types import LineCloud
 
-__all__ = ["entropy_key", "fixed_key", "random_directions", "random_lift", "paired_lift", "pairing", "unique_points"]
+__all__ = [
+    "entropy_key",
+    "fixed_key",
+    "random_directions",
+    "random_lift",
+    "random_lift_core",
+    "paired_lift",
+    "paired_lift_core",
+    "pairing",
+    "unique_points",
+]
 
 
 def entropy_key() -> jax.Array:
@@ -77,9 +97,14 @@ def _lines(d: np.ndarray, m: np.ndarray, dtype: np.dtype) -> LineCloud:
     return LineCloud(directions=jnp.asarray(d, dtype), moments=jnp.asarray(m, dtype))
 
 
+def _raw_directions(key: jax.Array, n: int) -> Float[Array, "n 3"]:
+    """The float32 draw of :func:`random_directions` for ``n`` lines (both lifts and both cores)."""
+    return random_directions(key, jnp.zeros((n, 3), jnp.float32))
+
+
 def _directions(key: jax.Array, n: int) -> np.ndarray:
     """:func:`random_directions` for ``n`` lines, renormalised in float64."""
-    d = np.asarray(random_directions(key, jnp.zeros((n, 3), jnp.float32)), np.float64)
+    d = np.asarray(_raw_directions(key, n), np.float64)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
@@ -118,13 +143,39 @@ def random_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
     return _lines(d, np.cross(p, d), dtype)
 
 
+def random_lift_core(points: Float[Array, "N 3"], key: jax.Array) -> LineCloud:
+    """:func:`random_lift` as a pure JAX function: jit-able, differentiable in ``points``.
+
+    The directions are :func:`random_lift`'s draw for ``key`` (float32 normals) renormalised in
+    the points' dtype; the moments are ``p × d``.  No checks and no merging of repeated points
+    (module docstring): equal to :func:`random_lift` for distinct points, to rounding.  The
+    directions do not depend on the points (zero gradient); ``∂m/∂p`` is ``v ↦ v × d``.
+    """
+    return lines_from_points_directions(points, _raw_directions(key, points.shape[0]).astype(points.dtype))
+
+
+def _pairing_core(n: int, key: jax.Array) -> Int[Array, " n"]:
+    """:func:`pairing` as a JAX array (jit-able for a static ``n``)."""
+    perm = jax.random.permutation(key, n)
+    a, b = perm[0 : n - n % 2 : 2], perm[1 : n - n % 2 : 2]
+    return jnp.full(n, -1, dtype=perm.dtype).at[a].set(b).at[b].set(a)
+
+
 def pairing(n: int, key: jax.Array) -> np.ndarray:
     """The random perfect matching of :func:`paired_lift`: ``partner[i]`` (``-1`` for the odd one out)."""
-    perm = np.asarray(jax.random.permutation(key, n))
-    partner = np.full(n, -1, dtype=np.int64)
-    a, b = perm[0 : n - n % 2 : 2], perm[1 : n - n % 2 : 2]
-    partner[a], partner[b] = b, a
-    return partner
+    return np.asarray(_pairing_core(n, key), dtype=np.int64)
+
+
+def _pair_roles(partner, xp):
+    """``(rep, other)``: the pair's representative (lower index; itself for the odd one out) and
+    the other point of the pair (itself for the representative's partner and the odd one out),
+    with ``xp`` = numpy or jax.numpy."""
+    n = partner.shape[0]
+    idx = xp.arange(n)
+    lo = xp.minimum(idx, xp.where(partner < 0, n, partner))  # one representative per pair
+    rep = xp.where(partner < 0, idx, lo)
+    other = xp.where(partner < 0, idx, xp.where(rep == idx, partner, idx))
+    return rep, other
 
 
 def paired_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
@@ -143,9 +194,7 @@ def paired_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
     k_pair, k_sign, k_dir = jax.random.split(key, 3)
     n = p.shape[0]
     partner = pairing(n, k_pair)
-    lo = np.minimum(np.arange(n), np.where(partner < 0, n, partner))  # one representative per pair
-    rep = np.where(partner < 0, np.arange(n), lo)
-    other = np.where(partner < 0, np.arange(n), np.where(rep == np.arange(n), partner, np.arange(n)))
+    rep, other = _pair_roles(partner, np)
     diff = p[other] - p[rep]
     length = np.linalg.norm(diff, axis=-1, keepdims=True)
     rnd = _directions(k_dir, n)[rep]
@@ -154,3 +203,25 @@ def paired_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
     d = np.where(degenerate, rnd, sign * diff / np.where(degenerate, 1.0, length))
     # the moment from the pair's representative point: both points get the bit-identical line
     return _lines(d, np.cross(p[rep], d), dtype)
+
+
+def paired_lift_core(points: Float[Array, "N 3"], key: jax.Array) -> LineCloud:
+    """:func:`paired_lift` as a pure JAX function: jit-able, differentiable in ``points``.
+
+    The same pairing, signs and fallback directions as :func:`paired_lift` for ``key``; the
+    direction of a pair ``±(p_j − p_i)/‖p_j − p_i‖`` and the moment ``p_rep × d`` are
+    differentiated, the pairing, the sign and the degenerate-pair test (``< 1e-9`` m) are
+    constants.  No checks and no merging of repeated points (module docstring): equal to
+    :func:`paired_lift` for distinct points, to rounding.
+    """
+    n = points.shape[0]
+    k_pair, k_sign, k_dir = jax.random.split(key, 3)
+    rep, other = _pair_roles(_pairing_core(n, k_pair), jnp)
+    diff = points[other] - points[rep]
+    length = safe_norm(diff, keepdims=True)  # the odd point out has diff = 0: gradient 0, not NaN
+    rnd = _raw_directions(k_dir, n).astype(points.dtype)
+    rnd = (rnd / jnp.linalg.norm(rnd, axis=-1, keepdims=True))[rep]
+    sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (n, 1)), 1.0, -1.0).astype(points.dtype)[rep]
+    degenerate = length < 1e-9
+    d = jnp.where(degenerate, rnd, sign * diff / jnp.where(degenerate, 1.0, length))
+    return LineCloud(directions=d, moments=jnp.cross(points[rep], d))
