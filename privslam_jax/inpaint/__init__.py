@@ -22,6 +22,13 @@ from privslam_jax.inpaint.filter import (
     edgeconnect_forward,
     filter_frame,
 )
+from privslam_jax.inpaint.differentiable import (
+    FilterConstants,
+    FilterModel,
+    filter_constants,
+    filter_image,
+    resize_matrices,
+)
 from privslam_jax.inpaint.losses import (
     discriminator_loss,
     feature_matching_loss,
@@ -51,6 +58,8 @@ __all__ = [
     "SAFE_METHODS",
     "CropBank",
     "CropBox",
+    "FilterConstants",
+    "FilterModel",
     "FolderData",
     "Mixture",
     "RealHoleData",
@@ -74,11 +83,14 @@ __all__ = [
     "extract",
     "fill",
     "fill_hole_from_outside",
+    "filter_constants",
     "filter_frame",
+    "filter_image",
     "instance_masks",
     "paste_back",
     "random_box_mask",
     "random_irregular_mask",
+    "resize_matrices",
     "safe_canny",
     "to_grey",
     "union",
