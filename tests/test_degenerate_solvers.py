@@ -58,7 +58,7 @@ def test_bundle_adjustment_ends_within_its_bound(kind):
 
 @pytest.mark.parametrize("kind", ["parallel", "one_point", "identical_lines"])
 def test_gradient_attack_ends_within_its_bound(kind):
-    from privslam_jax.attacks.gradient import GradientAttackConfig, _solve, line_neighbours
+    from privslam_jax.attacks.gradient import GradientAttackConfig, _minimise, line_neighbours
     from privslam_jax.types import LineCloud
 
     n = 16
@@ -77,5 +77,5 @@ def test_gradient_attack_ends_within_its_bound(kind):
     cfg = GradientAttackConfig(num_neighbours=4, max_steps=25)
     a = jnp.cross(lines.directions, lines.moments)
     nb = line_neighbours(a, lines.directions, k=cfg.num_neighbours, chunk_size=cfg.chunk_size)
-    t, steps = _solve(jnp.zeros(n), a, lines.directions, nb, cfg)
+    t, _, steps = _minimise(jnp.zeros(n), a, lines.directions, nb, cfg)
     assert int(steps) <= cfg.max_steps and t.shape == (n,)

@@ -151,13 +151,6 @@ def _minimise(t0, anchors, directions, neighbours, config: GradientAttackConfig)
     return sol.value, sol.result, sol.stats["num_steps"]
 
 
-@partial(jax.jit, static_argnames=("config",))
-def _solve(t0, anchors, directions, neighbours, config: GradientAttackConfig):
-    """``(t, steps)`` of :func:`_minimise` (``throw=False``)."""
-    t, _, steps = _minimise(t0, anchors, directions, neighbours, config)
-    return t, steps
-
-
 @jax.jit
 def _median_start(anchors, directions, neighbours):
     est = jax.vmap(lambda a, d, nb: _estimates(a, d, anchors[nb], directions[nb]))(anchors, directions, neighbours)
