@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from privslam_jax.types import Camera
 
@@ -46,6 +46,7 @@ __all__ = [
     "reprojection_jacobians",
     "stereo_residual",
     "stereo_jacobians",
+    "observation_rows",
     "skew",
 ]
 
@@ -158,3 +159,23 @@ def stereo_jacobians(
     zero = jnp.zeros_like(inv_z)
     # u_r = u − bf/z  ⇒  ∂u_r/∂p_c = ∂u/∂p_c + (0, 0, bf/z²)
     return _chain([Pu, Pv, Pu + jnp.stack([zero, zero, bf * inv_z * inv_z], -1)], p_c, R_c_w)
+
+
+def observation_rows(
+    uv: Float[Array, "N 2"], u_right: Float[Array, " N"] | None, mono: tuple[ArrayLike, ArrayLike],
+    stereo: tuple[ArrayLike, ArrayLike], dtype: Any,
+) -> tuple[Float[Array, "N K"], Bool[Array, " N"] | None, Float[Array, " N"], Float[Array, " N"]]:
+    """Observation rows of mixed monocular / stereo measurements, as ORB-SLAM lays them out.
+
+    ``u_right < 0`` marks a monocular observation (ORB-SLAM's convention). Returns the rows
+    ``(u, v)`` (``K = 2``, when ``u_right`` is ``None``) or ``(u, v, u_r)`` (``K = 3``, ``u_r = 0`` on
+    monocular rows), the stereo flags (``None`` without ``u_right``) and each row's Huber δ and χ²
+    threshold, taken from ``mono = (δ, χ²)`` or ``stereo = (δ, χ²)``.
+    """
+    n = uv.shape[0]
+    if u_right is None:
+        return (uv.astype(dtype), None, jnp.full((n,), mono[0], dtype), jnp.full((n,), mono[1], dtype))
+    is_st = u_right >= 0
+    rows = jnp.concatenate([uv.astype(dtype), jnp.where(is_st, u_right, 0.0).astype(dtype)[:, None]], axis=1)
+    return (rows, is_st, jnp.where(is_st, stereo[0], mono[0]).astype(dtype),
+            jnp.where(is_st, stereo[1], mono[1]).astype(dtype))

@@ -48,7 +48,13 @@ import numpy as np
 from flax import struct
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from privslam_jax.geometry.projection import pinhole, pinhole_stereo, reprojection_jacobians, stereo_jacobians
+from privslam_jax.geometry.projection import (
+    observation_rows,
+    pinhole,
+    pinhole_stereo,
+    reprojection_jacobians,
+    stereo_jacobians,
+)
 from privslam_jax.solvers.implicit import implicit_argmin
 from privslam_jax.solvers.lm import LMParams, SolveSummary, levenberg_marquardt
 from privslam_jax.solvers.robust import huber_rho, huber_weight
@@ -234,22 +240,13 @@ def _observations(
     dtype: Any,
 ) -> _Obs:
     """The padded observations with per-row intrinsics, Huber δ, χ² threshold and information."""
-    n_obs = obs_cam.shape[0]
-    if obs_u_right is None:
-        stereo, uv_obs = None, obs_uv.astype(dtype)
-        delta = jnp.full((n_obs,), config.huber_delta, dtype)
-        chi2 = jnp.full((n_obs,), config.chi2, dtype)
-    else:
-        is_st = obs_u_right >= 0
-        stereo = is_st.astype(dtype)
-        uv_obs = jnp.concatenate([obs_uv.astype(dtype), jnp.where(is_st, obs_u_right, 0.0).astype(dtype)[:, None]], 1)
-        delta = jnp.where(is_st, config.huber_delta_stereo, config.huber_delta).astype(dtype)
-        chi2 = jnp.where(is_st, config.chi2_stereo, config.chi2).astype(dtype)
+    uv_obs, is_st, delta, chi2 = observation_rows(obs_uv, obs_u_right, (config.huber_delta, config.chi2),
+                                                  (config.huber_delta_stereo, config.chi2_stereo), dtype)
     return _Obs(
         cam=obs_cam,
         pt=obs_pt,
         uv=uv_obs,
-        stereo=stereo,
+        stereo=None if is_st is None else is_st.astype(dtype),
         delta=delta,
         chi2=chi2,
         isg=jnp.where(obs_valid, obs_inv_sigma2.astype(dtype), 0.0),

@@ -59,6 +59,7 @@ from flax import struct
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from privslam_jax.geometry.projection import (
+    observation_rows,
     pinhole,
     pinhole_stereo,
     reprojection_jacobians,
@@ -252,20 +253,6 @@ def _obs_cost(
     return jnp.where(mask, c, 0.0), s, front
 
 
-def _observations(
-    uv: Float[Array, "N 2"], u_right: Float[Array, " N"] | None, config: "_RefineParams", dtype: Any
-) -> tuple[Float[Array, "N K"], Bool[Array, " N"] | None, Float[Array, " N"], Float[Array, " N"]]:
-    """Observation rows ``(u, v[, u_r])``, the stereo flags and each row's Huber δ and χ² threshold."""
-    n = uv.shape[0]
-    if u_right is None:
-        return uv, None, jnp.full((n,), config.huber_mono, dtype), jnp.full((n,), config.chi2_mono, dtype)
-    stereo = u_right >= 0
-    obs = jnp.concatenate([uv, jnp.where(stereo, u_right, 0.0)[:, None]], axis=1)
-    delta = jnp.where(stereo, config.huber_stereo, config.huber_mono).astype(dtype)
-    chi2 = jnp.where(stereo, config.chi2_stereo, config.chi2_mono).astype(dtype)
-    return obs, stereo, delta, chi2
-
-
 def _cost(
     T: jaxlie.SE3,
     points_w: Float[Array, "N 3"],
@@ -347,7 +334,8 @@ def _differentiable_refine(rounds: int) -> Callable[..., tuple[jaxlie.SE3, Refin
         points_w, uv, inv_sigma2, u_right, intrinsics = theta
         params = const[1]
         dtype = points_w.dtype
-        obs, stereo, delta, _ = _observations(uv, u_right, params, dtype)
+        obs, stereo, delta, _ = observation_rows(uv, u_right, (params.huber_mono, params.chi2_mono),
+                                                (params.huber_stereo, params.chi2_stereo), dtype)
         return _cost(T, points_w, obs, intrinsics.astype(dtype), stereo, out.active, inv_sigma2, delta, params)[0]
 
     return implicit_argmin(
@@ -373,7 +361,8 @@ def _refine_jit(
     dtype = points_w.dtype
     intrinsics = intrinsics.astype(dtype)
     T_c_w = jax.tree.map(lambda a: jnp.asarray(a, dtype), T_c_w)
-    obs, stereo, delta, chi2 = _observations(uv, u_right, config, dtype)
+    obs, stereo, delta, chi2 = observation_rows(uv, u_right, (config.huber_mono, config.chi2_mono),
+                                                (config.huber_stereo, config.chi2_stereo), dtype)
 
     def cost_at(T: jaxlie.SE3, mask: Bool[Array, " N"]) -> tuple[Float[Array, ""], Float[Array, " N"], Bool[Array, " N"]]:
         return _cost(T, points_w, obs, intrinsics, stereo, mask, inv_sigma2, delta, config)
