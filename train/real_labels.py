@@ -2,7 +2,7 @@
 
 Command::
 
-    python train/real_labels.py --synthetic DIR/SPLIT --out DIR [--window 3] [--repeat 3]
+    python train/real_labels.py --synthetic DIR/SPLIT --out DIR [--window 3] [--repeat 3] [--paste-copies 0]
 
 ``train/data/real_boxes.json`` holds boxes the developers drew by eye on keyframes of the real
 frames that ``../shared`` allows training on (``data/real/kitti_raw_a`` and the KITTI odometry
@@ -10,9 +10,13 @@ frames that ``../shared`` allows training on (``data/real/kitti_raw_a`` and the 
 ``nuscenes_front``), with no detector involved. Each keyframe's boxes are carried to the
 ``--window`` frames before and after it by dense optical flow
 (:func:`privslam_jax.detect.temporal.box_flow`, frame by frame), and those frames are written as
-the YOLO split ``OUT/{images,labels}/real``. ``OUT/{images,labels}/mix`` then links every frame of
-the synthetic split and ``--repeat`` copies of each real frame. Train with
-``train/detector.py --data OUT --split mix``.
+the YOLO split ``OUT/{images,labels}/real``. With ``--paste-copies N``, the split
+``OUT/{images,labels}/real_paste`` holds ``N`` copies of each real frame into which 1 to
+``--paste-max`` objects cut from the keyframes are pasted on the ground plane
+(:mod:`privslam_jax.detect.copy_paste`; people and riders are drawn ``--paste-person-weight``
+times as often as other objects, cars are not pasted: they are plenty). ``OUT/{images,labels}/mix``
+then links every frame of the synthetic split, ``--repeat`` copies of each real frame and the
+pasted copies. Train with ``train/detector.py --data OUT --split mix``.
 """
 
 from __future__ import annotations
@@ -34,7 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     from privslam_jax._shared import shared_dir
     from privslam_jax.argtypes import nonnegative_int, positive_int
     from privslam_jax.data.images import read_rgb8, write_image_file
-    from privslam_jax.data.yolo import link_mixed_split, write_yolo_labels
+    from privslam_jax.data.yolo import cxcywhn_to_xyxy, link_mixed_split, read_yolo_labels, write_yolo_labels
+    from privslam_jax.detect.copy_paste import cut_instance, object_groups, paste_instances
     from privslam_jax.detect.temporal import box_flow, dense_flow, flow_grey
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -43,6 +48,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--window", type=nonnegative_int, default=3, help="frames before and after each keyframe that get its boxes")
     p.add_argument("--repeat", type=positive_int, default=3, help="links per real frame in the mix split")
     p.add_argument("--boxes", type=Path, default=ROOT / "train" / "data" / "real_boxes.json")
+    p.add_argument("--paste-copies", type=nonnegative_int, default=0, help="copy-paste copies per real frame")
+    p.add_argument("--paste-max", type=positive_int, default=3, help="objects pasted into one copy, at most")
+    p.add_argument("--paste-person-weight", type=float, default=4.0, help="sampling weight of people and riders")
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     a = p.parse_args(argv)
     shared = shared_dir()
     if shared is None:
@@ -86,7 +95,37 @@ def main(argv: list[str] | None = None) -> int:
                 prev = img
     print(f"wrote {len(written)} real frames ({len(boxes)} keyframes, window {a.window}) to {img_dir}")
 
-    n_mix = link_mixed_split(a.out, "mix", [(a.synthetic, 1), (a.out / "real", a.repeat)])
+    sources = [(a.synthetic, 1), (a.out / "real", a.repeat)]
+    if a.paste_copies:
+        bank, weight = [], []
+        for rel, kb in boxes.items():
+            key = shared / rel
+            b0 = np.asarray(kb, np.float64).reshape(-1, 5)
+            mask_file = key.parent.parent / "maskrcnn_masks" / key.name
+            matte = cv2.imread(str(mask_file), cv2.IMREAD_GRAYSCALE) if mask_file.is_file() else None
+            img = read_rgb8(key)
+            for g in object_groups(b0[:, :4], b0[:, 4].astype(np.int32), skip=(2,)):
+                inst = cut_instance(img, b0[g, :4], b0[g, 4].astype(np.int32), matte)
+                if inst is not None:
+                    bank.append(inst)
+                    weight.append(a.paste_person_weight if 0 in inst.class_ids else 1.0)
+        prob = np.asarray(weight) / np.sum(weight)
+        rng = np.random.default_rng(a.seed)
+        pimg, plab = a.out / "images" / "real_paste", a.out / "labels" / "real_paste"
+        for f in sorted(img_dir.glob("*.png")):
+            img = read_rgb8(f)
+            h, w = img.shape[:2]
+            cls, cxcywh = read_yolo_labels(lab_dir / f"{f.stem}.txt", missing_ok=True)
+            xyxy = cxcywhn_to_xyxy(cxcywh, w, h)
+            for k in range(a.paste_copies):
+                picks = [bank[i] for i in rng.choice(len(bank), int(rng.integers(1, a.paste_max + 1)), p=prob)]
+                out, pb, pc = paste_instances(img, xyxy, cls, picks, rng)
+                write_image_file(pimg / f"p{k}_{f.name}", cv2.cvtColor(out, cv2.COLOR_RGB2BGR))
+                write_yolo_labels(plab / f"p{k}_{f.stem}.txt", pc, np.clip(pb, 0, [w, h, w, h]), w, h)
+        print(f"wrote {a.paste_copies} pasted copies of each real frame from {len(bank)} cut objects "
+              f"({sum(0 in i.class_ids for i in bank)} with a person) to {pimg}")
+        sources.append((a.out / "real_paste", 1))
+    n_mix = link_mixed_split(a.out, "mix", sources)
     print(f"wrote {a.out}/images/mix ({n_mix} images)")
     return 0
 
