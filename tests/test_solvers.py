@@ -178,6 +178,25 @@ def test_jit_grad_does_not_retrace_for_a_repeated_shape(x64):
     assert len(traces) == 1 and not np.allclose(a, b)
 
 
+def test_grad_of_a_jitted_solve_equals_jit_of_grad(x64):
+    """``grad(jit(f))`` (a user's jitted loss differentiated from outside) partially evaluates the
+    jitted solve; the solver's constants (here the observations' information and intrinsics, traced
+    arguments of the jitted function) must not become closed-over constants there."""
+    X, uv, isg, _ = _pose_problem(8, 24, False)
+    valid = jnp.ones(24, bool)
+
+    @jax.jit
+    def loss(pts, info, intr):
+        r = refine_pose_padded(jaxlie.SE3.identity(), pts, uv, valid, info, None, intr, EXACT)
+        return jnp.sum(r.T_c_w.wxyz_xyz)
+
+    K = camera_params(CAM, jnp.float64)
+    outside = jax.grad(loss)(X, isg, K)
+    inside = jax.jit(jax.grad(loss))(X, isg, K)
+    assert np.all(np.isfinite(outside))
+    np.testing.assert_allclose(outside, inside, rtol=1e-10, atol=1e-14)
+
+
 # ---- bundle adjustment ----------------------------------------------------------------------
 
 

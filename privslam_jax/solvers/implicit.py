@@ -21,7 +21,7 @@ Caveats, made explicit rather than silent:
   every tangent of ``x`` is NaN;
 * rows of ``H`` that are exactly zero (variables the cost does not see: fixed cameras, padded points)
   get an identity row, so their derivative is zero;
-* the initial guess ``x0`` and ``const`` get no derivative, and the auxiliary outputs (costs, masks,
+* the initial guess ``x0`` and ``const`` get no derivative (their tangents are ignored), and the auxiliary outputs (costs, masks,
   counters) are treated as constants (zero tangents), like ``stop_gradient``;
 * ``H`` is dense (``n × n`` for ``n`` tangent dimensions): meant for pose refinement and small BA
   problems; :func:`implicit_argmin` refuses ``n > max_dim``.
@@ -79,14 +79,19 @@ def implicit_argmin(
         aux_tree[:] = [tree]
         return x, tuple(leaves), aux
 
+    # ``const`` crosses as a flat tuple of leaves, a differentiable argument whose tangent is ignored:
+    # as a ``nondiff_argnums`` argument its arrays would be closed-over constants, which breaks
+    # ``grad`` of a ``jit``-ed caller (a tracer cannot be a constant), and as a pytree of the caller's
+    # own (type-checked) classes its float0 tangents would have to pass their annotations.
     @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-    def f(const: Any, x0: Any, theta: Any) -> tuple[Any, tuple[Any, ...]]:
-        x, leaves, _ = solve_flat(x0, theta, const)
+    def f(const_tree: Any, x0: Any, theta: Any, const_leaves: tuple[Any, ...]) -> tuple[Any, tuple[Any, ...]]:
+        x, leaves, _ = solve_flat(x0, theta, jax.tree.unflatten(const_tree, const_leaves))
         return x, leaves
 
     @f.defjvp
-    def f_jvp(const: Any, primals: tuple[Any, Any], tangents: tuple[Any, Any]) -> tuple[Any, Any]:
-        x0, theta = primals
+    def f_jvp(const_tree: Any, primals: tuple[Any, Any, Any], tangents: tuple[Any, Any, Any]) -> tuple[Any, Any]:
+        x0, theta, const_leaves = primals
+        const = jax.tree.unflatten(const_tree, const_leaves)
         theta_dot = tangents[1]
         x, leaves, aux = solve_flat(x0, theta, const)
         flat0, unravel = ravel_pytree(zero_tangent(x))
@@ -112,7 +117,8 @@ def implicit_argmin(
         return (x, leaves), (x_dot, tuple(_zero_tangent(a) for a in leaves))
 
     def call(x0: Any, theta: Any, const: Any) -> tuple[Any, Any]:
-        x, leaves = f(const, x0, theta)
+        const_leaves, const_tree = jax.tree.flatten(const)
+        x, leaves = f(const_tree, x0, theta, tuple(const_leaves))
         return x, jax.tree.unflatten(aux_tree[0], leaves)
 
     return call
