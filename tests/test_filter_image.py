@@ -26,7 +26,9 @@ from privslam_jax.inpaint.crops import _resize, crop_box, extract
 from privslam_jax.inpaint.differentiable import (
     FilterConstants,
     FilterModel,
+    apply_filter,
     filter_constants,
+    filter_geometry,
     filter_image,
     resize_matrices,
 )
@@ -146,6 +148,33 @@ def test_grey_frames_overlaps_and_frames_smaller_than_the_model(tiny):
     box = crop_box(m[0], TINY.crop_pad, TINY.min_crop)
     assert box.height < TINY.size < box.width
     np.testing.assert_allclose(filter_image(params, small, m, model), filter_frame(small, m, inpainter=inp), atol=1e-5)
+
+
+def test_apply_filter_pads_rows_and_compiles_once_for_every_mask_set(tiny):
+    """The fixed-shape form a training loop jits once: geometry and constants padded to 8 rows equal
+    ``filter_frame`` for two different sets of masks (and for none), with a single trace."""
+    inp, model, params, _ = tiny
+    img, masks = _tiny_case()
+    traces = []
+
+    @jax.jit
+    def run(p, x, geometry, constants):
+        traces.append(1)
+        return apply_filter(p, x, geometry, model, constants)
+
+    def padded(m):
+        c = filter_constants(img, m, TINY)
+        k = len(c.edges)
+        return filter_geometry(m, TINY, rows=8), FilterConstants(np.pad(c.edges, ((0, 8 - k), (0, 0), (0, 0))),
+                                                                  np.pad(c.fill, ((0, 8 - k), (0, 0), (0, 0), (0, 0))))
+
+    for m in (masks, masks[1:3], np.zeros_like(masks[:1])):
+        out = np.asarray(run(params, img, *padded(m)))
+        np.testing.assert_allclose(out, filter_frame(img, m, inpainter=inp), atol=1e-5)
+        assert np.array_equal(out[~m.any(axis=0)], img[~m.any(axis=0)])
+    assert len(traces) == 1
+    with pytest.raises(ValueError, match="do not fit"):
+        filter_geometry(masks, TINY, rows=1)
 
 
 def test_empty_masks_and_bad_arguments(tiny):

@@ -5,13 +5,15 @@
 as JAX operations so that ``jax.grad`` / ``jax.jit`` / ``jax.vjp`` go through it:
 
 1. hide: the pixels of the union of ``masks`` are set to zero (``jnp.where``);
-2. crop: each object's square crop (:func:`~privslam_jax.inpaint.crops.crop_box`) is a static slice;
-3. resize to the model size: ``R_v · crop · R_uᵀ`` per channel, then clipped to ``[0, 1]`` and the
-   crop's hole zeroed, as :func:`~privslam_jax.inpaint.crops.extract` does;
-4. the EdgeConnect forward (:func:`~privslam_jax.inpaint.filter.edgeconnect_forward`), all
+2. crop and resize to the model size in one linear map per object: ``D_v · x · D_uᵀ`` per channel,
+   where ``D_v`` (``S × H``) and ``D_u`` (``S × W``) hold the crop's resize matrices at its rows and
+   columns (:func:`~privslam_jax.inpaint.crops.crop_box`) and zeros elsewhere; then clipped to
+   ``[0, 1]`` and the crop's hole zeroed, as :func:`~privslam_jax.inpaint.crops.extract` does;
+3. the EdgeConnect forward (:func:`~privslam_jax.inpaint.filter.edgeconnect_forward`), all
    objects in one batch;
-5. resize back (``P_v · out · P_uᵀ``), paste under each object's own mask, average where masks
-   overlap, and keep the input everywhere outside the union of the masks (``jnp.where``).
+4. resize back and paste (``U_v · out · U_uᵀ``, the transpose layout), under each object's own
+   mask, averaged where masks overlap; the input is kept everywhere outside the union of the masks
+   (``jnp.where``).
 
 Resampling. ``crops.py`` resizes with OpenCV (``INTER_AREA`` when shrinking, ``INTER_LINEAR``
 otherwise). Both are linear maps along each axis, so ``R_v``/``R_u`` are read off OpenCV itself
@@ -37,8 +39,10 @@ gradient with respect to every hidden pixel is exactly zero and the output does 
 them, bit for bit.
 
 Shapes: ``masks`` must be concrete (numpy): the crop boxes, holes and resize matrices are computed
-from them on the host and are static under ``jax.jit`` (close over them:
-``jax.jit(lambda p, x: filter_image(p, x, masks, model))``; one compilation per set of boxes).
+from them on the host (:func:`filter_geometry`). :func:`filter_image` closes over them (under
+``jax.jit``, one compilation per set of boxes); :func:`apply_filter` takes them as fixed-shape
+arrays, padded to a number of rows, so that one compilation serves every frame of a size (what a
+training loop needs).
 """
 
 from __future__ import annotations
@@ -60,7 +64,8 @@ from privslam_jax.inpaint.crops import CropBox, crop_box, extract
 from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, edgeconnect_forward
 from privslam_jax.inpaint.masks import GREY_WEIGHTS, dilate, edge_band, safe_canny, to_grey
 
-__all__ = ["FilterConstants", "FilterModel", "filter_constants", "filter_image", "resize_matrices"]
+__all__ = ["FilterConstants", "FilterGeometry", "FilterModel", "apply_filter", "filter_constants", "filter_geometry",
+           "filter_image", "resize_matrices"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,6 +172,54 @@ def _crops(masks: np.ndarray, config: InpainterConfig) -> list[_Crop]:
     return out
 
 
+class FilterGeometry(NamedTuple):
+    """Where each object's crop comes from and goes back to, as fixed-shape arrays (one row per
+    object, padded to ``K`` rows with empty objects), so that one compiled function serves every set
+    of masks of a frame size: :func:`apply_filter` under ``jax.jit`` with the geometry as an argument.
+
+    The crop-and-resize of object ``k`` is ``down_v[k] · x · down_u[k]ᵀ`` on the whole frame (the
+    rows and columns outside its crop are zero), the paste back ``up_v[k] · y · up_u[k]ᵀ``."""
+
+    down_v: Float[np.ndarray | Array, "K S H"]
+    down_u: Float[np.ndarray | Array, "K S W"]
+    up_v: Float[np.ndarray | Array, "K H S"]
+    up_u: Float[np.ndarray | Array, "K W S"]
+    hole: Bool[np.ndarray | Array, "K S S"]
+    """Each crop's hole at the model size (the union of the masks, resized)."""
+    edge_hole: Bool[np.ndarray | Array, "K S S"]
+    """The hole grown by the Canny band (where G1's edges replace the input edges)."""
+    own: Bool[np.ndarray | Array, "K H W"]
+    """Where object ``k``'s output is pasted: its own mask (empty for padding rows)."""
+    hidden: Bool[np.ndarray | Array, "H W"]
+    """The union of the masks."""
+
+
+def filter_geometry(masks: Bool[np.ndarray, "K H W"], config: InpainterConfig, rows: int | None = None) -> FilterGeometry:
+    """:class:`FilterGeometry` of the non-empty ``masks`` (host side), padded to ``rows`` objects
+    (default: as many as there are non-empty masks; fewer rows than objects is refused)."""
+    masks = np.asarray(masks)
+    if masks.dtype != np.bool_ or masks.ndim != 3:
+        raise ValueError(f"masks must be bool (K, H, W), got {masks.dtype} {masks.shape}")
+    h, w = masks.shape[1:]
+    masks = masks[masks.any(axis=(1, 2))]
+    crops = _crops(masks, config)
+    k = len(crops) if rows is None else rows
+    if k < len(crops):
+        raise ValueError(f"{len(crops)} objects do not fit in {k} rows")
+    s = config.size
+    g = FilterGeometry(np.zeros((k, s, h), np.float32), np.zeros((k, s, w), np.float32),
+                       np.zeros((k, h, s), np.float32), np.zeros((k, w, s), np.float32),
+                       np.zeros((k, s, s), bool), np.zeros((k, s, s), bool), np.zeros((k, h, w), bool),
+                       masks.any(axis=0) if len(masks) else np.zeros((h, w), bool))
+    for i, c in enumerate(crops):
+        b = c.box
+        g.down_v[i, :, b.v0:b.v1], g.down_u[i, :, b.u0:b.u1] = c.down
+        g.up_v[i, b.v0:b.v1], g.up_u[i, b.u0:b.u1] = c.up
+        g.hole[i], g.edge_hole[i] = c.hole, c.edge_hole
+        g.own[i, b.v0:b.v1, b.u0:b.u1] = c.own
+    return g
+
+
 def filter_constants(
     image: Float[np.ndarray, "H W *C"], masks: Bool[np.ndarray, "K H W"], config: InpainterConfig
 ) -> FilterConstants:
@@ -219,48 +272,54 @@ def filter_image(
     if len(masks) == 0:
         return image
     cfg = model.config
-    dtype = image.dtype
-    rgb = jnp.repeat(image[..., None], 3, axis=-1) if image.ndim == 2 else image
-    crops = _crops(masks, cfg)
-    k, s = len(crops), cfg.size
+    geometry = filter_geometry(masks, cfg)
+    k, s = len(masks), cfg.size
     if constants is None:
+        rgb = jnp.repeat(image[..., None], 3, axis=-1) if image.ndim == 2 else image
         shapes = FilterConstants(jax.ShapeDtypeStruct((k, s, s), jnp.float32),
                                  jax.ShapeDtypeStruct((k, s, s, 3), jnp.float32))
         constants = jax.pure_callback(lambda x: filter_constants(np.asarray(x), masks, cfg), shapes,
                                       jax.lax.stop_gradient(rgb), vmap_method="sequential")
-    edges = jax.lax.stop_gradient(jnp.asarray(constants.edges, dtype))
-    fill = jax.lax.stop_gradient(jnp.asarray(constants.fill, dtype))
-    if edges.shape != (k, s, s) or fill.shape != (k, s, s, 3):
-        raise ValueError(f"constants are for other masks: edges {edges.shape}, fill {fill.shape}, "
-                         f"expected {(k, s, s)} and {(k, s, s, 3)}")
+    if np.shape(constants.edges) != (k, s, s) or np.shape(constants.fill) != (k, s, s, 3):
+        raise ValueError(f"constants are for other masks: edges {np.shape(constants.edges)}, fill "
+                         f"{np.shape(constants.fill)}, expected {(k, s, s)} and {(k, s, s, 3)}")
+    return apply_filter(params, image, geometry, model, constants)
 
-    hidden = masks.any(axis=0)
-    visible = jnp.where(hidden[..., None], jnp.zeros((), dtype), rgb)  # no hidden pixel is ever read
-    batch = []
-    for c in crops:
-        b = c.box
-        rv, ru = (jnp.asarray(r, dtype) for r in c.down)
-        x = jnp.einsum("iv,vuc,ju->ijc", rv, visible[b.v0:b.v1, b.u0:b.u1], ru)
-        x = jnp.where(c.hole[..., None], jnp.zeros((), dtype), jnp.clip(x, 0.0, 1.0))
-        batch.append(x)
-    rgb_s = jnp.stack(batch)
+
+def apply_filter(
+    params: PyTree,
+    image: Float[Array | np.ndarray, "H W *C"],
+    geometry: FilterGeometry,
+    model: FilterModel,
+    constants: FilterConstants,
+) -> Float[Array, "H W *C"]:
+    """:func:`filter_image` on precomputed, fixed-shape inputs: traceable in all of them, so that one
+    ``jax.jit`` compilation serves every frame of a size and every set of masks with the same number
+    of rows (:func:`filter_geometry` pads them; ``constants`` must have as many rows, zeros for
+    padding). The gradient is as in :func:`filter_image` (edges and prefill held fixed)."""
+    image = jnp.asarray(image)
+    h, w = _image_shape(image.shape)
+    dtype = image.dtype
+    rgb = jnp.repeat(image[..., None], 3, axis=-1) if image.ndim == 2 else image
+    g = jax.tree.map(jnp.asarray, geometry)
+    if g.hidden.shape != (h, w) or g.own.shape[1:] != (h, w):
+        raise ValueError(f"geometry is for {g.hidden.shape} frames, the image is {(h, w)}")
+    cast = lambda a: jnp.asarray(a, dtype)  # noqa: E731
+    edges = jax.lax.stop_gradient(cast(constants.edges))
+    fill = jax.lax.stop_gradient(cast(constants.fill))
+    if edges.shape != g.hole.shape or fill.shape != g.hole.shape + (3,):
+        raise ValueError(f"constants have {edges.shape[0]} rows, the geometry {g.hole.shape[0]}")
+    zero = jnp.zeros((), dtype)
+    visible = jnp.where(g.hidden[..., None], zero, rgb)  # no hidden pixel is ever read
+    x = jnp.einsum("ksh,hwc,ktw->kstc", cast(g.down_v), visible, cast(g.down_u))
+    rgb_s = jnp.where(g.hole[..., None], zero, jnp.clip(x, 0.0, 1.0))
     grey_s = rgb_s @ jnp.asarray(GREY_WEIGHTS, dtype)
-    f = lambda a: jnp.asarray(a, dtype)[..., None]  # noqa: E731
-    hole = f(np.stack([c.hole for c in crops]))
-    edge_hole = f(np.stack([c.edge_hole for c in crops]))
     eg, ig = nnx.merge(model.graphdef, params)
-    out_s, _, _ = edgeconnect_forward(eg, ig, rgb_s, grey_s[..., None], edges[..., None], hole, edge_hole,
-                                      model.use_edge_model, fill, cfg.residual)
-
-    acc = jnp.zeros((h, w, 3), dtype)
-    count = np.zeros((h, w), np.int32)
-    for i, c in enumerate(crops):
-        b = c.box
-        pv, pu = (jnp.asarray(r, dtype) for r in c.up)
-        paste = jnp.einsum("iv,vuc,ju->ijc", pv, out_s[i], pu)
-        paste = jnp.where(c.own[..., None], paste, jnp.zeros((), dtype))
-        acc = acc + jnp.pad(paste, ((b.v0, h - b.v1), (b.u0, w - b.u1), (0, 0)))
-        count[b.v0:b.v1, b.u0:b.u1] += c.own
-    blend = acc / jnp.asarray(np.maximum(count, 1), dtype)[..., None]
-    out = jnp.where(hidden[..., None], blend, rgb)
+    out_s, _, _ = edgeconnect_forward(eg, ig, rgb_s, grey_s[..., None], edges[..., None], cast(g.hole)[..., None],
+                                      cast(g.edge_hole)[..., None], model.use_edge_model, fill, model.config.residual)
+    paste = jnp.einsum("khs,kstc,kwt->khwc", cast(g.up_v), out_s, cast(g.up_u))
+    acc = jnp.sum(jnp.where(g.own[..., None], paste, zero), axis=0)
+    count = jnp.sum(g.own, axis=0).astype(dtype)
+    blend = acc / jnp.maximum(count, 1.0)[..., None]
+    out = jnp.where(g.hidden[..., None], blend, rgb)
     return out[..., 0] if image.ndim == 2 else out
