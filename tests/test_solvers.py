@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from privslam_jax.slam.ba import BAConfig, bundle_adjust_padded
+from privslam_jax.solvers.implicit import implicit_argmin
 from privslam_jax.solvers.linear import DenseSystem, dense_damped_solve
 from privslam_jax.solvers.lm import STATUS_NAMES, LMParams, levenberg_marquardt
 from privslam_jax.solvers.schur import analyze
@@ -272,3 +273,28 @@ def test_monocular_ba_with_a_free_scale_flags_its_gradient(x64):
     two = p["fixed"].at[1].set(True)  # fixing a second camera removes it
     g2 = jax.grad(lambda uv: jnp.sum(_ba(p, uv, p["K"], mono, fixed=two).points))(p["uv"])
     assert np.all(np.isfinite(g2)) and np.any(g2 != 0)
+
+
+def test_implicit_singularity_is_judged_in_the_variables_own_units():
+    """float32 quadratic ``F = ½ Σ a_i (x_i − θ_i)²`` with curvatures 1e-4, 1, 1e4 (metres against
+    radians against pixels): ``dx*/dθ = I`` exactly, though ``H``'s raw condition number (1e8) is
+    beyond float32's; a truly free direction (``F = ½ (x_0 + x_1 − θ)²``) still gives NaN."""
+    a = jnp.asarray([1e-4, 1.0, 1e4], jnp.float32)
+    f = implicit_argmin(
+        solve=lambda x0, th, const: (th, jnp.asarray(True)),
+        objective=lambda x, th, const, aux: 0.5 * jnp.sum(const * (x - th) ** 2),
+        retract=lambda x, xi, const: x + xi,
+        zero_tangent=jnp.zeros_like,
+        converged=lambda aux: aux,
+    )
+    J = jax.jacfwd(lambda th: f(jnp.zeros(3, jnp.float32), th, a)[0])(jnp.ones(3, jnp.float32))
+    np.testing.assert_allclose(J, np.eye(3), atol=1e-6)
+    free = implicit_argmin(
+        solve=lambda x0, th, const: (jnp.stack([th, jnp.zeros_like(th)]), jnp.asarray(True)),
+        objective=lambda x, th, const, aux: 0.5 * (x[0] + x[1] - th) ** 2,
+        retract=lambda x, xi, const: x + xi,
+        zero_tangent=jnp.zeros_like,
+        converged=lambda aux: aux,
+    )
+    g = jax.grad(lambda th: jnp.sum(free(jnp.zeros(2, jnp.float32), th, None)[0]))(jnp.float32(1.0))
+    assert np.isnan(g)

@@ -108,7 +108,11 @@ def implicit_argmin(
         H = 0.5 * (H + H.T)
         dead = jnp.all(H == 0, axis=1)
         H = H + jnp.diag(dead.astype(H.dtype))
-        eig = jnp.abs(jnp.linalg.eigvalsh(H))
+        # singular or not, judged in units of the variables' own curvature (Jacobi scaling
+        # D^-1/2 H D^-1/2): metres against radians must not look like a free gauge
+        d = jnp.sqrt(jnp.abs(jnp.diag(H)))
+        d = jnp.where(d > 0, d, 1.0)
+        eig = jnp.abs(jnp.linalg.eigvalsh(H / jnp.outer(d, d)))
         well_posed = jnp.min(eig) > 1e3 * jnp.finfo(H.dtype).eps * jnp.max(eig)
         scale = jnp.where(converged(aux) & well_posed, 1.0, jnp.nan).astype(H.dtype)
         _, rhs = jax.jvp(lambda th: grad_tangent(flat0, th), (theta,), (theta_dot,))
