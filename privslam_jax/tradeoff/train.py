@@ -1,0 +1,266 @@
+"""Fine-tune the EdgeConnect filter for privacy and SLAM accuracy at once (issue 18 item 2).
+
+For a pair of frames ``(x_r, x_t)`` of a synthetic world (reference ``r``, target ``t = r + gap``)
+with their objects' masks ``M_r``, ``M_t`` and the filter ``y = f_φ(x, M)``
+(:func:`~privslam_jax.inpaint.differentiable.apply_filter`), one step lowers
+
+    L(φ) = L_fid(y_t, b_t, M_t) + λ_p · L_priv(y_t, M_t) + λ_a · L_acc(y_t, y_r)
+
+(:mod:`privslam_jax.tradeoff.objectives`: ``b_t`` the object-free render, ``L_priv`` the frozen
+detector's privacy-class confidence inside the masks, ``L_acc`` the geodesic error of direct
+photometric alignment of the two filtered frames against the ground-truth relative pose) with
+Optax's Adam. The filter is run once per frame with :func:`jax.vjp`; the three losses give the
+cotangents of the filtered frames; one pull-back gives ``∂L/∂φ``. When the alignment did not converge
+its gradient is NaN by design (:mod:`privslam_jax.solvers.implicit`): that step then drops the
+accuracy term (counted in the log as ``acc_skipped``) instead of writing NaN into the weights.
+
+Only the generators' ``nnx.Param`` leaves are trained; the spectral-norm vectors stay as loaded
+(eval mode). Masks are padded to ``rows`` objects so that the whole step is one compiled function.
+Checkpoints (orbax) hold the parameters, the optimiser state and the step; a rerun of
+:func:`train_tradeoff` with the same ``workdir`` resumes from the latest one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import optax
+from flax import nnx
+from jaxtyping import Array, Bool, Float, PyTree
+
+from privslam_jax.inpaint.differentiable import (
+    FilterConstants,
+    FilterGeometry,
+    FilterModel,
+    apply_filter,
+    filter_constants,
+    filter_geometry,
+)
+from privslam_jax.inpaint.filter import Inpainter
+from privslam_jax.tradeoff.objectives import DetectorModel, accuracy_loss, fidelity_loss, privacy_loss
+from privslam_jax.tradeoff.photometric import PhotometricConfig
+
+__all__ = ["TradeoffConfig", "TradeoffSample", "tradeoff_step", "synthetic_pairs", "train_tradeoff", "sample_of"]
+
+
+@dataclasses.dataclass(frozen=True)
+class TradeoffConfig:
+    """Weights, optimiser and data of :func:`train_tradeoff`."""
+
+    privacy_weight: float = 1.0
+    """λ_p."""
+    accuracy_weight: float = 1.0
+    """λ_a (``L_acc`` is in metres for ``rotation_scale = 1 m/rad``)."""
+    learning_rate: float = 1e-4
+    steps: int = 400
+    world_seeds: tuple[int, ...] = tuple(range(1000, 1010))
+    """Synthetic worlds sampled from (keep them apart from evaluation worlds)."""
+    frames_per_world: int = 60
+    gap: int = 1
+    """Target frame = reference frame + ``gap`` (0.8 m ahead at the world's default speed; at 1.6 m
+    the alignment falls into wrong minima more often)."""
+    width: int = 320
+    height: int = 96
+    dilation: int = 2
+    """Mask dilation in pixels (``privslam filter`` uses 4 at 640 px wide)."""
+    rows: int = 16
+    """Objects per frame, at most (more are dropped: the farthest, i.e. the smallest masks)."""
+    detector_input_hw: tuple[int, int] | None = (192, 640)
+    """Size the frame is resized to for the detector (``None``: as it is)."""
+    privacy_temperature: float = 0.01
+    """τ of the privacy loss's soft maximum."""
+    alignment: PhotometricConfig = PhotometricConfig(function_tolerance=1e-6, step_tolerance=1e-6)
+    """Tolerances a float32 solve reaches (the default 1e-10 is float64's: in float32 the solver then
+    ends at its iteration limit more often, and its gradient is flagged NaN)."""
+    checkpoint_every: int = 50
+    seed: int = 0
+
+
+class TradeoffSample(NamedTuple):
+    """One training pair, every array of a fixed shape."""
+
+    target: Float[np.ndarray, "H W 3"]
+    reference: Float[np.ndarray, "H W 3"]
+    background: Float[np.ndarray, "H W 3"]
+    """The target's object-free render."""
+    reference_depth: Float[np.ndarray, "H W"]
+    T_t_r: Float[np.ndarray, " 7"]
+    """Ground-truth reference → target pose, jaxlie ``wxyz_xyz``."""
+    intrinsics: Float[np.ndarray, " 4"]
+    masks_t: Bool[np.ndarray, "K H W"]
+    geometry_t: FilterGeometry
+    constants_t: FilterConstants
+    geometry_r: FilterGeometry
+    constants_r: FilterConstants
+
+
+def _masks(frame: Any, rows: int, dilation: int) -> np.ndarray:
+    from privslam_jax.inpaint.masks import instance_masks
+
+    m = instance_masks(frame.instance_ids, None, dilation)
+    m = m[np.argsort(-m.sum(axis=(1, 2)), kind="stable")[:rows]]  # the largest objects first
+    out = np.zeros((rows,) + frame.instance_ids.shape, bool)
+    out[:len(m)] = m
+    return out
+
+
+def _padded(image: np.ndarray, masks: np.ndarray, model: FilterModel, rows: int) -> tuple[FilterGeometry, FilterConstants]:
+    c = filter_constants(image, masks, model.config)
+    k = len(c.edges)
+    pad = ((0, rows - k),)
+    return (filter_geometry(masks, model.config, rows),
+            FilterConstants(np.pad(c.edges, pad + ((0, 0),) * 2), np.pad(c.fill, pad + ((0, 0),) * 3)))
+
+
+def sample_of(ref: Any, tgt: Any, camera: Any, model: FilterModel, rows: int, dilation: int) -> TradeoffSample:
+    """The :class:`TradeoffSample` of two rendered frames (``SynthFrame``) of one world."""
+    m_r, m_t = _masks(ref, rows, dilation), _masks(tgt, rows, dilation)
+    x_r, x_t = (np.asarray(f.image, np.float32) for f in (ref, tgt))
+    T = np.linalg.inv(tgt.T_w_c) @ ref.T_w_c
+    g_t, c_t = _padded(x_t, m_t, model, rows)
+    g_r, c_r = _padded(x_r, m_r, model, rows)
+    return TradeoffSample(
+        target=x_t, reference=x_r, background=np.asarray(tgt.background, np.float32),
+        reference_depth=np.asarray(ref.depth, np.float32),
+        T_t_r=np.asarray(jaxlie.SE3.from_matrix(T).wxyz_xyz, np.float32),
+        intrinsics=np.array([camera.fx, camera.fy, camera.cx, camera.cy], np.float32),
+        masks_t=m_t, geometry_t=g_t, constants_t=c_t, geometry_r=g_r, constants_r=c_r,
+    )
+
+
+def synthetic_pairs(config: TradeoffConfig, model: FilterModel) -> Iterator[TradeoffSample]:
+    """An endless, reproducible stream of training pairs: a random world of ``config.world_seeds``
+    (rendered once, kept), a random reference frame, the target ``gap`` frames later."""
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence
+
+    rng = np.random.default_rng(config.seed)
+    worlds: dict[int, Any] = {}
+    while True:
+        s = int(rng.choice(config.world_seeds))
+        if s not in worlds:
+            worlds[s] = make_sequence(SynthConfig(width=config.width, height=config.height,
+                                                  num_frames=config.frames_per_world, seed=s))
+        seq = worlds[s]
+        r = int(rng.integers(0, config.frames_per_world - config.gap))
+        yield sample_of(seq[r], seq[r + config.gap], seq.camera, model, config.rows, config.dilation)
+
+
+def tradeoff_step(
+    params: PyTree, rest: PyTree, opt_state: PyTree, sample: TradeoffSample, detector_params: PyTree, *,
+    model: FilterModel, detector: DetectorModel, optimizer: optax.GradientTransformation, config: TradeoffConfig,
+) -> tuple[PyTree, PyTree, dict[str, Array]]:
+    """One Adam step on ``L`` (module docstring); returns new params, optimiser state and the losses.
+
+    ``params``: the generators' ``nnx.Param`` leaves; ``rest``: the other state (spectral-norm
+    vectors), held fixed. Pure: jit it with the keyword arguments bound."""
+    s = sample
+
+    def filt(p: PyTree) -> tuple[Array, Array]:
+        state = nnx.merge_state(p, rest)
+        return (apply_filter(state, s.target, s.geometry_t, model, s.constants_t),
+                apply_filter(state, s.reference, s.geometry_r, model, s.constants_r))
+
+    (y_t, y_r), pull = jax.vjp(filt, params)
+    l_fid, g_fid = jax.value_and_grad(fidelity_loss)(y_t, s.background, s.masks_t)
+    l_priv, g_priv = jax.value_and_grad(
+        lambda y: privacy_loss(detector_params, y, s.masks_t, detector, temperature=config.privacy_temperature,
+                               input_hw=config.detector_input_hw))(y_t)
+    if config.accuracy_weight:
+        T_gt = jaxlie.SE3(s.T_t_r)
+        l_acc, (g_acc_t, g_acc_r) = jax.value_and_grad(
+            lambda yt, yr: accuracy_loss(yt, yr, s.reference_depth, s.intrinsics, T_gt, config=config.alignment),
+            argnums=(0, 1))(y_t, y_r)
+        ok = jnp.isfinite(l_acc) & jnp.all(jnp.isfinite(g_acc_t)) & jnp.all(jnp.isfinite(g_acc_r))
+    else:  # λ_a = 0: no alignment at all
+        l_acc, g_acc_t, g_acc_r, ok = jnp.zeros((), y_t.dtype), jnp.zeros_like(y_t), jnp.zeros_like(y_r), jnp.asarray(True)
+    w_acc = jnp.where(ok, config.accuracy_weight, 0.0)
+    cot_t = g_fid + config.privacy_weight * g_priv + w_acc * jnp.where(ok, g_acc_t, 0.0)
+    cot_r = w_acc * jnp.where(ok, g_acc_r, 0.0)
+    (grads,) = pull((cot_t, cot_r))
+    updates, opt_state = optimizer.update(grads, opt_state, params)
+    params = optax.apply_updates(params, updates)
+    total = l_fid + config.privacy_weight * l_priv + w_acc * jnp.where(ok, l_acc, 0.0)
+    return params, opt_state, {"loss": total, "fidelity": l_fid, "privacy": l_priv,
+                               "accuracy": l_acc, "acc_skipped": (~ok).astype(jnp.float32)}
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_step(model: FilterModel, detector: DetectorModel, config: TradeoffConfig) -> tuple[Any, Any]:
+    """Adam and the jitted :func:`tradeoff_step`, once per (model, detector, config) in a process."""
+    optimizer = optax.adam(config.learning_rate)
+    return optimizer, jax.jit(lambda p, r, o, smp, dp: tradeoff_step(p, r, o, smp, dp, model=model, detector=detector,
+                                                                     optimizer=optimizer, config=config))
+
+
+def train_tradeoff(
+    config: TradeoffConfig, inpainter: Inpainter, detector_params: PyTree, detector: DetectorModel,
+    workdir: str | Path, *, data: Iterator[TradeoffSample] | None = None, max_steps: int | None = None,
+    progress: bool = True,
+) -> Inpainter:
+    """Fine-tune ``inpainter`` for ``config.steps`` steps (or resume from ``workdir/checkpoints``).
+
+    Writes ``workdir/checkpoints/<step>`` (orbax: parameters, Adam state) every
+    ``config.checkpoint_every`` steps and at the end, and ``workdir/log.csv`` (step, seconds, losses).
+    ``max_steps`` stops early (a killed run); rerunning resumes. ``data`` defaults to
+    :func:`synthetic_pairs`; a resumed run skips the samples the finished steps used, so that it
+    continues on the same stream. Returns the fine-tuned :class:`Inpainter`.
+    """
+    import orbax.checkpoint as ocp
+    from tqdm import tqdm
+
+    model, state = FilterModel.split(inpainter)
+    params, rest = nnx.split_state(state, nnx.Param, ...)
+    optimizer, step_fn = _compiled_step(model, detector, config)
+    opt_state = optimizer.init(params)
+    workdir = Path(workdir).resolve()
+    workdir.mkdir(parents=True, exist_ok=True)
+    mngr = ocp.CheckpointManager(workdir / "checkpoints",
+                                 options=ocp.CheckpointManagerOptions(max_to_keep=2, enable_async_checkpointing=False))
+    leaves, treedef = jax.tree.flatten((params, opt_state))
+    start = 0
+    if mngr.latest_step() is not None:
+        start = int(mngr.latest_step())
+        target = {str(i): np.asarray(a) for i, a in enumerate(leaves)}
+        restored = mngr.restore(start, args=ocp.args.StandardRestore(target))
+        params, opt_state = jax.tree.unflatten(treedef, [jnp.array(np.asarray(restored[str(i)]))
+                                                        for i in range(len(leaves))])
+    data = synthetic_pairs(config, model) if data is None else data
+    for _ in range(start):
+        next(data)
+    end = config.steps if max_steps is None else min(max_steps, config.steps)
+    log_path = workdir / "log.csv"
+    if log_path.is_file():  # drop rows logged after the checkpoint we resume from
+        rows = log_path.read_text().splitlines(keepends=True)
+        log_path.write_text("".join(rows[:1] + [r for r in rows[1:] if int(r.split(",", 1)[0]) <= start]))
+    bar = tqdm(range(start, end), initial=start, total=config.steps, disable=not progress, desc="tradeoff")
+    for step in bar:
+        sample = next(data)
+        t0 = time.perf_counter()
+        params, opt_state, logs = step_fn(params, rest, opt_state, sample, detector_params)
+        logs = {k: float(v) for k, v in logs.items()}
+        dt = time.perf_counter() - t0
+        if not all(np.isfinite(v) for k, v in logs.items() if k != "accuracy"):
+            raise FloatingPointError(f"step {step + 1}: non-finite loss {logs}; the last checkpoint is step {start}")
+        bar.set_postfix({k: f"{v:.4f}" for k, v in logs.items() if k != "acc_skipped"})
+        with log_path.open("a") as f:
+            if f.tell() == 0:
+                f.write("step,seconds," + ",".join(logs) + "\n")
+            f.write(f"{step + 1},{dt:.3f}," + ",".join(f"{v:.6f}" for v in logs.values()) + "\n")
+        done = step + 1
+        if done % config.checkpoint_every == 0 or done == end:
+            leaves = jax.tree.leaves((params, opt_state))
+            mngr.save(done, args=ocp.args.StandardSave({str(i): np.asarray(a) for i, a in enumerate(leaves)}))
+            start = done
+    mngr.wait_until_finished()
+    mngr.close()
+    eg, ig = nnx.merge(model.graphdef, nnx.merge_state(params, rest))
+    return Inpainter(eg, ig, model.config, model.use_edge_model)
