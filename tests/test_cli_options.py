@@ -203,12 +203,19 @@ TRAIN_CASES = [
     ("pseudo_labels", ["--weights", "w.npz", *LABELS, "--label-conf", "1.5"], "--label-conf"),
     ("real_labels", [*LABELS, "--window", "-1"], "--window"),
     ("real_labels", [*LABELS, "--repeat", "0"], "--repeat"),
+    ("real_labels", [*LABELS, "--paste-copies", "-1"], "--paste-copies"),
+    ("tradeoff", ["--workdir", MISSING, "--steps", "0"], "--steps"),
+    ("tradeoff", ["--workdir", MISSING, "--privacy-weight", "-1"], "--privacy-weight"),
+    ("tradeoff", ["--workdir", MISSING, "--accuracy-weight", "nan"], "--accuracy-weight"),
+    ("tradeoff", ["--workdir", MISSING, "--lr", "0"], "--lr"),
+    ("tradeoff", ["--workdir", MISSING, "--worlds", "5-2"], "--worlds"),
+    ("tradeoff", ["--workdir", MISSING, "--frames", "1"], "--frames"),
 ]
 
 
 @pytest.fixture(scope="module")
 def train_scripts() -> dict[str, ModuleType]:
-    return {name: _load(name) for name in ("detector", "inpaint", "pseudo_labels", "real_labels")}
+    return {name: _load(name) for name in ("detector", "inpaint", "pseudo_labels", "real_labels", "tradeoff")}
 
 
 @pytest.mark.parametrize(("script", "argv", "option"), TRAIN_CASES,
