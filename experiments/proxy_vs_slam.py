@@ -107,6 +107,7 @@ def world_job(task: Task) -> list[dict]:
 
     if task.x64:
         jax.config.update("jax_enable_x64", True)
+    from privslam_jax.data.images import grey_as_read
     from privslam_jax.data.synthetic import SynthConfig
     from privslam_jax.inpaint.filter import Inpainter
     from privslam_jax.pipeline import slam_stage
@@ -117,8 +118,7 @@ def world_job(task: Task) -> list[dict]:
         filter_world,
         render_world,
         sequence_proxy,
-        slam_grey,
-    )
+        )
 
     todo = [f for f in task.filters if _key(task.seed, task.frames, f, task.gap, task.stride, task.x64) not in task.done]
     if not todo:
@@ -155,7 +155,7 @@ def world_job(task: Task) -> list[dict]:
             frames8 = filter_world(world, name, inpainter if name == "edgeconnect" else None)
             r["filter_s"] = time.perf_counter() - t
             t = time.perf_counter()
-            stage = slam_stage((slam_grey(f) for f in frames8), world.camera, "mono", timestamps=world.timestamps,
+            stage = slam_stage((grey_as_read(f) for f in frames8), world.camera, "mono", timestamps=world.timestamps,
                                gt_poses=world.poses, out=None, total=n)
             r.update(slam_fields(stage.metrics, time.perf_counter() - t))
             t = time.perf_counter()
@@ -166,7 +166,7 @@ def world_job(task: Task) -> list[dict]:
                       "proxy_s": time.perf_counter() - t})
             if name == "none" and task.noise_seed is not None:
                 t = time.perf_counter()
-                res = run_slam((slam_grey(f) for f in frames8), world.camera,
+                res = run_slam((grey_as_read(f) for f in frames8), world.camera,
                                SlamConfig(mode="mono", seed=task.noise_seed), timestamps=world.timestamps, total=n)
                 wall = time.perf_counter() - t
                 m = slam_metrics(res, world.timestamps, world.poses, "mono", wall)

@@ -4,24 +4,25 @@ Each stage is a public function that returns a frozen dataclass (or plain arrays
 can call the stages one by one and get typed values back; :func:`run_pipeline` chains them and
 returns a :class:`PipelineReport`.  Files are a sink: :func:`run_pipeline` writes every stage's
 files under its output folder, so each intermediate result can be inspected or fed to the
-matching ``privslam`` command, while the in-memory stages (:func:`slam_stage` without ``out``,
-:func:`privacy_stage`) write nothing.
+matching ``privslam`` command, while the in-memory stages (:func:`filter_stage` and
+:func:`slam_stage` without ``out``, :func:`privacy_stage`) write nothing.
 
 1. **data** (:func:`data_stage` → :class:`DataStage`) – render the synthetic street world into a
    KITTI-layout sequence (:func:`privslam_jax.data.kitti_write.write_kitti_sequence`) →
    ``OUT/original``, or read the KITTI-layout folder ``config.sequence`` as it is (never written).
 2. **privacy filter** (client side; :func:`filter_stage` → :class:`FilterStage`) – detect the
    privacy objects in the left images and remove them
-   (:func:`privslam_jax.inpaint.sequence.filter_sequence`, a leak-free fill) → ``OUT/filtered``.
-   This stage exists only folder to folder today: it reads a sequence folder and writes one.
-   ``masks="detect"`` uses the embedded detector made for the frames (or ``detector``),
+   (:func:`privslam_jax.inpaint.sequence.filter_sequence_in_memory`, a leak-free fill): the filtered
+   8-bit frames and their masks in memory (:class:`~privslam_jax.inpaint.sequence.FilteredFrames`),
+   written to ``OUT/filtered`` by :func:`run_pipeline` in the same pass.  ``masks="detect"`` uses the embedded detector made for the frames (or ``detector``),
    ``masks="gt"`` the renderer's instance masks. Where ground-truth instance masks exist (synthetic
    frames) the report also says how much of each object the filter missed (:func:`mask_leak`): a
    detector miss is a privacy leak that no fill can repair.
 3. **SLAM** (edge-server side; :func:`slam_stage` → :class:`SlamStage`) – monocular (or stereo)
    SLAM on frames in memory (:func:`privslam_jax.slam.system.run_slam`), with its metrics (ATE/RPE
    with ground-truth poses) and the in-memory ``SlamResult``; :func:`run_pipeline` runs it on the
-   original and on the filtered frames and writes ``OUT/slam_original``, ``OUT/slam_filtered``
+   original frames (read from the sequence folder) and on the filtered frames in memory (the grey
+   values ``privslam slam`` would read from their files) and writes ``OUT/slam_original``, ``OUT/slam_filtered``
    (trajectories, maps, ``metrics.json``, plots).
 4. **map privacy** (:func:`map_to_ground_truth`, :func:`privacy_stage` → :class:`PrivacyStage`) –
    the monocular map is first brought to metres by the Sim(3) alignment of its trajectory to the
@@ -148,12 +149,14 @@ class FilterStage:
     """``"detect"`` (a detector's masks) or ``"gt"`` (the renderer's)."""
     detector: str
     """``"embedded"`` or the detector weights' path."""
-    sequence: Path
-    """The filtered KITTI-layout sequence folder."""
+    sequence: Path | None
+    """The filtered KITTI-layout sequence folder written (``None``: in memory only)."""
     report: dict[str, Any]
     """The filter's ``filter_report.json`` (detector, inpainter, settings, masks per frame)."""
     leak: dict[str, Any] | None = None
     """:func:`mask_leak` against the ground-truth instance masks (``None``: no ground-truth masks)."""
+    frames: Any = dataclasses.field(default=None, repr=False, compare=False)
+    """The :class:`~privslam_jax.inpaint.sequence.FilteredFrames` (8-bit frames, mask ids); in memory only."""
 
     def to_json_dict(self) -> dict[str, Any]:
         """The JSON-able dict of ``report.json``'s ``"filter"`` entry."""
@@ -167,7 +170,7 @@ class FilterStage:
         """Printable lines: what was filtered, what leaked, and the detector's privacy warning if any."""
         source = ("ground-truth masks" if self.masks == "gt" else
                   f"detections of {'the embedded detector' if self.detector == 'embedded' else Path(self.detector).name}")
-        line = f"privacy filter: {self.method} on {source} -> {self.sequence}"
+        line = f"privacy filter: {self.method} on {source} -> {self.sequence or 'memory'}"
         if self.leak is not None:
             leak = self.leak
             line += (f"; {leak['objects_left_visible']:.1f}% of {leak['objects']} objects left visible "
@@ -331,33 +334,35 @@ def data_stage(config: PipelineConfig, out: str | Path, progress: bool = False) 
                      description="\n".join(lines), gt_poses=seq.poses)
 
 
-def filter_stage(sequence: str | Path, out: str | Path, config: PipelineConfig, *, synthetic: bool = False,
-                 progress: bool = False) -> FilterStage:
-    """Stage 2: remove the privacy objects of the sequence folder ``sequence`` into ``out``.
+def filter_stage(sequence: str | Path, config: PipelineConfig, *, out: str | Path | None = None,
+                 synthetic: bool = False, progress: bool = False) -> FilterStage:
+    """Stage 2: remove the privacy objects of the sequence folder ``sequence``, in memory.
 
-    Folder to folder: the filter exists only as
-    :func:`privslam_jax.inpaint.sequence.filter_sequence` (it reads the sequence's files and writes
-    the filtered sequence under ``out``), called with ``config``'s filter settings
-    (``filter_method``, ``masks``, ``detector``, ``inpainter``, ``conf``, ``propagate``, ``tta``).
-    With ``synthetic`` and a ``masks/`` folder of ground-truth instance masks, the leak is measured
-    (:func:`mask_leak`).
+    :func:`privslam_jax.inpaint.sequence.filter_sequence_in_memory` with ``config``'s filter
+    settings (``filter_method``, ``masks``, ``detector``, ``inpainter``, ``conf``, ``propagate``,
+    ``tta``): the filtered frames are :attr:`FilterStage.frames`.  ``out``: also write the filtered
+    sequence there (as ``privslam filter --out`` does), in the same pass.  With ``synthetic`` and a
+    ``masks/`` folder of ground-truth instance masks, the leak is measured (:func:`mask_leak`).
     """
-    from privslam_jax.inpaint.sequence import filter_sequence
+    from privslam_jax.data.kitti import KittiSequence
+    from privslam_jax.inpaint.sequence import filter_sequence_in_memory
 
     if config.masks not in ("detect", "gt"):
         raise ValueError(f"masks must be 'detect' or 'gt', got {config.masks!r}")
     sequence = Path(sequence)
     detector = None if config.detector is None else Path(config.detector)
-    filtered_dir = filter_sequence(
-        sequence, Path(out), config.filter_method, masks_source=config.masks, detector_path=detector,
+    frames, report, folder = filter_sequence_in_memory(
+        sequence, config.filter_method, masks_source=config.masks, detector_path=detector,
         model_path=None if config.inpainter is None else Path(config.inpainter), progress=progress,
-        conf=config.conf, propagate=config.propagate, tta=config.tta,
+        conf=config.conf, propagate=config.propagate, tta=config.tta, out=None if out is None else Path(out),
     )
-    report = json.loads((filtered_dir / "filter_report.json").read_text())
-    leak = mask_leak(sequence, filtered_dir) if (sequence / "masks").is_dir() and synthetic else None
+    leak = None
+    if (sequence / "masks").is_dir() and synthetic:
+        original = KittiSequence(sequence)
+        leak = mask_leak((original.instance_ids(i) for i in range(len(original))), frames.label_maps)
     return FilterStage(method=config.filter_method, masks=config.masks,
-                       detector="embedded" if detector is None else str(detector), sequence=filtered_dir,
-                       report=report, leak=leak)
+                       detector="embedded" if detector is None else str(detector), sequence=folder,
+                       report=report, leak=leak, frames=frames)
 
 
 def slam_stage(
@@ -522,7 +527,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
     lines = [data.description]
 
     t0 = time.perf_counter()
-    filt = filter_stage(data.sequence, out / "filtered", config, synthetic=data.synthetic, progress=progress)
+    filt = filter_stage(data.sequence, config, out=out / "filtered", synthetic=data.synthetic, progress=progress)
     timings["filter"] = time.perf_counter() - t0
     lines.append(filt.summary())
 
@@ -530,9 +535,14 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
     privacy: PrivacyStage | None = None
     if config.slam:
         slam = {}
-        for label, path in (("original", data.sequence), ("filtered", filt.sequence)):
+        seq, original, n = load_sequence_frames(data.sequence, config.mode)
+        filtered = filt.frames
+        if config.mode == "stereo" and filtered.right is None:
+            raise ValueError("stereo SLAM on the filtered frames needs the right images filtered too: use masks='detect'")
+        in_memory = (filtered.grey(i) if config.mode == "mono" else (filtered.grey(i), filtered.grey(i, right=True))
+                     for i in range(n))
+        for label, frames in (("original", original), ("filtered", in_memory)):
             t0 = time.perf_counter()
-            seq, frames, n = load_sequence_frames(path, config.mode)
             slam[label] = slam_stage(frames, seq.camera, config.mode, timestamps=seq.timestamps[:n], gt_poses=seq.poses,
                                      out=out / f"slam_{label}", total=n, progress=progress)
             timings[f"slam_{label}"] = time.perf_counter() - t0
@@ -559,27 +569,30 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
                           privacy=privacy, timings_s=timings, summary="\n".join(lines))
 
 
-def mask_leak(original: Path, filtered: Path, min_pixels: int = 50, visible: float = 0.5) -> dict[str, Any]:
+def mask_leak(instance_ids: Iterable[ArrayLike], hidden: Iterable[ArrayLike], min_pixels: int = 50,
+              visible: float = 0.5) -> dict[str, Any]:
     """How much of the ground-truth objects the privacy filter left unmasked.
 
-    For every frame, each ground-truth instance of ``original/masks`` (uint16 instance ids) with at
-    least ``min_pixels`` pixels is compared with the filter's mask ``filtered/masks`` (label map,
-    > 0 = hidden). Returns the number of such objects (instance × frame), the percentage with more
-    than ``visible`` of their pixels left unmasked (``objects_left_visible``), and the percentage of
-    all their pixels left unmasked (``pixels_left_visible``).
+    For every frame, each ground-truth instance of ``instance_ids`` (``(H, W)`` integer ids, 0 =
+    none; a sequence's ``masks/``) with at least ``min_pixels`` pixels is compared with the filter's
+    mask ``hidden`` of the same frame (``(H, W)`` label map, > 0 = hidden;
+    :attr:`~privslam_jax.inpaint.sequence.FilteredFrames.label_maps`). Returns the number of such
+    objects (instance × frame), the percentage with more than ``visible`` of their pixels left
+    unmasked (``objects_left_visible``), and the percentage of all their pixels left unmasked
+    (``pixels_left_visible``).
     """
-    from privslam_jax.data.images import read_raw
-
     n = left = px = px_left = 0
-    for f in sorted((original / "masks").glob("*.png")):
-        ids = read_raw(f)
-        hidden = read_raw(filtered / "masks" / f.name) > 0
-        for k in np.unique(ids[ids > 0]):
-            inst = ids == k
+    for k, (ids, hid) in enumerate(zip(instance_ids, hidden, strict=True)):
+        ids, hid = np.asarray(ids), np.asarray(hid)
+        if ids.shape != hid.shape:
+            raise ValueError(f"frame {k}: instance ids {ids.shape} and hidden map {hid.shape} differ in shape")
+        hid = hid > 0
+        for j in np.unique(ids[ids > 0]):
+            inst = ids == j
             size = int(inst.sum())
             if size < min_pixels:
                 continue
-            missed = int((inst & ~hidden).sum())
+            missed = int((inst & ~hid).sum())
             n += 1
             left += missed > visible * size
             px += size

@@ -97,6 +97,30 @@ def test_typed_report_is_what_the_command_printed_and_wrote(gt_run):
     assert d["slam"]["filtered"] is report.slam["filtered"].metrics  # the metrics only, not the SlamResult
 
 
+def test_filter_stage_in_memory_is_what_the_files_hold_and_slam_reads(gt_run):
+    """The pipeline filters in memory and runs SLAM on those frames; the filtered folder it writes as a
+    sink holds the same frames and masks, and ``privslam slam``'s reading of that folder gives the same run."""
+    from privslam_jax.data.kitti import KittiSequence
+    from privslam_jax.data.images import read_raw
+    from privslam_jax.slam.outputs import load_sequence_frames
+
+    out, _, report = gt_run
+    frames = report.filter.frames
+    folder = out / "filtered" / "sequences" / "synth"
+    files = KittiSequence(folder, grey=True)
+    assert len(frames) == len(files) == 14
+    for i in range(14):
+        np.testing.assert_array_equal(frames.grey(i), files.image(i))
+        np.testing.assert_array_equal(frames.left[i], read_raw(folder / "image_2" / f"{i:06d}.png")[..., ::-1])
+        np.testing.assert_array_equal(frames.label_maps[i], read_raw(folder / "masks" / f"{i:06d}.png"))
+    assert frames.instance_classes == {int(k): v for k, v in json.loads((folder / "instance_classes.json").read_text()).items()}
+    seq, it, n = load_sequence_frames(folder, "mono")
+    again = pipeline.slam_stage(it, seq.camera, "mono", timestamps=seq.timestamps[:n], gt_poses=seq.poses, total=n)
+    mine = report.slam["filtered"]
+    np.testing.assert_array_equal(again.result.trajectory.as_matrices(), mine.result.trajectory.as_matrices())
+    assert again.metrics["ate_rmse_sim3"] == mine.metrics["ate_rmse_sim3"]
+
+
 def test_privacy_stage_in_memory_equals_a_numpy_recomputation_and_writes_nothing(tmp_path, monkeypatch):
     from privslam_jax.privacy.lift import fixed_key
 
@@ -173,7 +197,7 @@ def test_stages_refuse_bad_input(gt_run):
     xyz, units = pipeline.map_to_ground_truth(result, _synthetic_gt(14))  # the ground truth the run used
     assert units == "m" and np.array_equal(xyz, report.privacy.map_xyz)
     with pytest.raises(ValueError, match="masks must be 'detect' or 'gt'"):
-        pipeline.filter_stage(report.sequence, "unused", pipeline.PipelineConfig(masks="bogus"))
+        pipeline.filter_stage(report.sequence, pipeline.PipelineConfig(masks="bogus"))
     with pytest.raises(ValueError, match="attack needs slam"):
         pipeline.run_pipeline(pipeline.PipelineConfig(slam=False), "unused", progress=False)
 
@@ -187,12 +211,9 @@ def _synthetic_gt(frames):
     return np.asarray(seq.trajectory.as_matrices(), np.float64)
 
 
-def test_mask_leak_counts_objects_and_pixels_left_unmasked(tmp_path):
-    from privslam_jax.data.images import write_uint16
+def test_mask_leak_counts_objects_and_pixels_left_unmasked():
     from privslam_jax.pipeline import mask_leak
 
-    (tmp_path / "o" / "masks").mkdir(parents=True)
-    (tmp_path / "f" / "masks").mkdir(parents=True)
     ids = np.zeros((40, 60), np.uint16)
     ids[0:10, 0:10] = 1    # 100 px, fully hidden
     ids[20:30, 0:10] = 2   # 100 px, 70 hidden -> not "left visible"
@@ -202,9 +223,7 @@ def test_mask_leak_counts_objects_and_pixels_left_unmasked(tmp_path):
     hidden[0:10, 0:10] = 7
     hidden[20:27, 0:10] = 8
     hidden[0:10, 20:24] = 9
-    write_uint16(tmp_path / "o" / "masks" / "000000.png", ids)
-    write_uint16(tmp_path / "f" / "masks" / "000000.png", hidden)
-    leak = mask_leak(tmp_path / "o", tmp_path / "f", min_pixels=50)
+    leak = mask_leak([ids], [hidden], min_pixels=50)
     assert leak["objects"] == 3
     assert abs(leak["objects_left_visible"] - 100 / 3) < 1e-9
     assert abs(leak["pixels_left_visible"] - 100 * (30 + 160) / 400) < 1e-9

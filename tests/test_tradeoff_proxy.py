@@ -24,6 +24,7 @@ import jaxlie
 import numpy as np
 import pytest
 
+from privslam_jax.data.images import grey_as_read
 from privslam_jax.data.synthetic import SynthConfig, make_sequence
 from privslam_jax.tradeoff import PhotometricConfig, accuracy_loss
 from privslam_jax.tradeoff.proxy import (
@@ -37,7 +38,6 @@ from privslam_jax.tradeoff.proxy import (
     render_world,
     scale_intrinsics,
     sequence_proxy,
-    slam_grey,
     spearman,
     summarize_changes,
 )
@@ -76,7 +76,7 @@ def test_in_memory_frames_equal_what_the_commands_write_and_slam_reads(tmp_path,
         mine = filter_world(world, method, Inpainter.load(model) if method == "edgeconnect" else None)
         assert n == len(world)
         for i, grey in enumerate(frames):
-            np.testing.assert_array_equal(slam_grey(mine[i]), grey, err_msg=f"{method} frame {i}")
+            np.testing.assert_array_equal(grey_as_read(mine[i]), grey, err_msg=f"{method} frame {i}")
         if method != "none":
             assert (mine != world.rgb8).any()  # the filter did something
         np.testing.assert_array_equal(world.timestamps, seq.timestamps)

@@ -34,7 +34,7 @@ from jaxtyping import Float, Shaped
 from privslam_jax.data.files import write_atomic
 from privslam_jax.errors import input_error
 
-__all__ = ["read_image", "read_raw", "read_rgb8", "write_rgb", "write_uint16", "write_image_file", "check_unit_image",
+__all__ = ["grey_as_read", "read_image", "read_raw", "read_rgb8", "write_rgb", "write_uint16", "write_image_file", "check_unit_image",
            "as_unit_image", "like_input", "image_header", "MAX_PIXELS", "MAX_EXPANSION"]
 
 MAX_PIXELS = 1 << 28
@@ -285,6 +285,17 @@ def read_image(path: str | os.PathLike, grey: bool = False) -> Float[np.ndarray,
     else:
         out = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     return (out.astype(np.float32) / np.float32(scale)).astype(np.float32)
+
+
+def grey_as_read(image: Shaped[np.ndarray, "H W *C"]) -> Float[np.ndarray, "H W"]:
+    """An 8-bit frame (``(H, W, 3)`` RGB or ``(H, W)`` grey) as :func:`read_image` with ``grey=True``
+    reads it back from the PNG it is written to: OpenCV's BGR → grey, float32 / 255."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+        raise ValueError(f"grey_as_read expects an (H, W, 3) or (H, W) uint8 image, got {img.dtype} {img.shape}")
+    if img.ndim == 3:
+        img = cv2.cvtColor(np.ascontiguousarray(img[..., ::-1]), cv2.COLOR_BGR2GRAY)
+    return img.astype(np.float32) / np.float32(255.0)
 
 
 def write_rgb(path: str | os.PathLike, image: Shaped[np.ndarray, "H W 3"]) -> None:

@@ -1,7 +1,11 @@
 """Filter a whole sequence: detect (or read) the privacy objects of every frame, hide and fill them.
 
 :func:`filter_sequence` is the library side of ``privslam filter`` (its command-line help, in
-:mod:`privslam_jax.commands.filter`, describes the folders it reads and writes).
+:mod:`privslam_jax.commands.filter`, describes the folders it reads and writes); it writes frame by
+frame, never holding the sequence in memory.  :func:`filter_sequence_in_memory` returns the same
+frames, masks and report as :class:`FilteredFrames` (the pipeline's filter stage; the folder is an
+optional sink), and :func:`filter_frames` / :func:`iter_filtered` filter frames already in memory
+with any per-frame mask source.
 :func:`check_detector_domain` refuses a synthetic-only detector on real frames and warns about one
 whose measured real-frame recall is low.
 """
@@ -10,8 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -21,12 +27,8 @@ from privslam_jax.data.files import write_atomic
 from privslam_jax.data.images import write_image_file
 from privslam_jax.runs import check_run_folder, claim_run_folder, complete_run_folder
 
-__all__ = ["RECALL_WARNING_BELOW", "check_detector_domain", "filter_sequence"]
-
-
-def _write_image(path: Path, image: np.ndarray, grey: bool) -> None:
-    u8 = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
-    write_image_file(path, u8[..., 0] if grey else cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
+__all__ = ["RECALL_WARNING_BELOW", "FilteredFrame", "FilteredFrames", "check_detector_domain", "filter_frames",
+           "filter_sequence", "filter_sequence_in_memory", "iter_filtered", "write_filtered"]
 
 
 def _label_map(masks: np.ndarray, ids: list[int], shape: tuple[int, int]) -> np.ndarray:
@@ -106,39 +108,143 @@ def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch:
     return text
 
 
-def filter_sequence(
-    sequence: Path,
-    out: Path,
+@dataclasses.dataclass(frozen=True)
+class FilteredFrame:
+    """One frame out of :func:`iter_filtered`: the filtered images as ``privslam filter`` writes them."""
+
+    index: int
+    left: np.ndarray
+    """``(H, W, 3)`` uint8 RGB, or ``(H, W)`` uint8 for a grey sequence."""
+    right: np.ndarray | None
+    """The right image, filtered with its own masks (``None``: not filtered)."""
+    label_map: np.ndarray
+    """``(H, W)`` uint16: the id of the left image's mask covering each pixel (0: not hidden)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FilteredFrames:
+    """A filtered sequence in memory (:func:`filter_frames`); :func:`write_filtered` is its file sink."""
+
+    left: np.ndarray
+    """``(N, H, W, 3)`` uint8 RGB, or ``(N, H, W)`` uint8 grey: the frames ``image_2/`` (``image_0/``) gets."""
+    right: np.ndarray | None
+    """The right frames, filtered with their own detections (``None``: not filtered)."""
+    label_maps: np.ndarray
+    """``(N, H, W)`` uint16 mask ids of the left frames (``masks/``; 0: not hidden)."""
+    instance_classes: dict[int, int]
+    """Class id of every mask id (``instance_classes.json``; -1: unknown)."""
+
+    def __len__(self) -> int:
+        return len(self.left)
+
+    def grey(self, i: int, right: bool = False) -> np.ndarray:
+        """Frame ``i`` as ``privslam slam`` reads its file (``KittiSequence(grey=True)``): float32 ``(H, W)``."""
+        from privslam_jax.data.images import grey_as_read
+
+        frames = self.right if right else self.left
+        if frames is None:
+            raise ValueError("the right frames were not filtered (only detected masks filter them)")
+        return grey_as_read(frames[i])
+
+
+def _to_u8(image: np.ndarray, grey: bool) -> np.ndarray:
+    u8 = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+    return u8[..., 0] if grey else u8
+
+
+def iter_filtered(
+    left: Sequence[Any] | np.ndarray,
     method: str,
-    masks_source: str | None = None,
-    detector_path: Path | None = None,
-    model_path: Path | None = None,
-    dilation: int = 4,
+    masks_of: Callable[[int, int], tuple[np.ndarray, list[int]]],
+    *,
+    right: Sequence[Any] | np.ndarray | None = None,
+    inpainter: Any = None,
     seed: int = 0,
-    progress: bool = True,
-    conf: float | None = None,
-    propagate: int = 0,
-    tta: bool = False,
-    allow_domain_mismatch: bool = False,
-    overwrite: bool = False,
-) -> Path:
-    """Filter every frame of ``sequence`` into ``out``; returns the written sequence folder.
+    grey: bool = False,
+    shape: tuple[int, int] | None = None,
+    progress: bool = False,
+) -> Iterator[FilteredFrame]:
+    """Filter ``left[i]`` (and ``right[i]``) frame by frame, yielding each as 8-bit images.
 
-    The sequence folder is a run folder (:mod:`privslam_jax.runs`): its ``manifest.json`` says
-    ``"complete": true`` only after every frame and report is written; a folder holding an earlier
-    run is refused unless ``overwrite``, which clears it (and its ``poses/NAME.txt``) first.
-
-    With ``masks_source="detect"`` the detector runs over the whole sequence first (threshold
-    ``conf``, default the paper's 0.4; ``tta`` and ``propagate`` as in
-    :func:`privslam_jax.detect.temporal.detect_sequence`), then each frame is filled.
-    ``method="edgeconnect"`` without ``model_path`` uses the embedded inpainter made for the frames:
-    the synthetic-world one on ``privslam synth`` output, the real-frame one on anything else.
-    ``filter_report.json`` records the detector (and its training domain), the inpainter, the settings and the
-    number of masks per frame by origin (detected, promoted low-score, propagated).
+    ``left``/``right``: images as :func:`~privslam_jax.data.images.read_image` returns them (or
+    uint8), read lazily by index. ``masks_of(i, k)``: the ``(K, H, W)`` bool masks and their ids of
+    frame ``i`` of the left (``k = 0``) or right (``k = 1``) images.  Frame ``i`` is filled with
+    seed ``seed + i``; ``grey``: the output keeps one channel.  ``shape``: the ``(H, W)`` every
+    frame must have (refused otherwise).
     """
+    from privslam_jax.data.images import as_unit_image
+    from privslam_jax.inpaint.filter import filter_frame
+
+    sides = [left] if right is None else [left, right]
+    for i in tqdm(range(len(left)), desc=f"filter {method}", disable=not progress):
+        out: list[np.ndarray] = []
+        label_map = None
+        for k, frames in enumerate(sides):
+            image = as_unit_image(frames[i], f"frame {i}")
+            if shape is not None and image.shape[:2] != shape:
+                raise ValueError(f"frame {i} is {image.shape[1]}x{image.shape[0]}, the sequence's frames are "
+                                 f"{shape[1]}x{shape[0]}")
+            masks, ids = masks_of(i, k)
+            out.append(_to_u8(filter_frame(image, masks, method, inpainter=inpainter, seed=seed + i), grey))
+            if k == 0:
+                label_map = _label_map(masks, ids, image.shape[:2])
+        assert label_map is not None
+        yield FilteredFrame(index=i, left=out[0], right=out[1] if len(out) > 1 else None, label_map=label_map)
+
+
+def filter_frames(left: Sequence[Any] | np.ndarray, method: str, masks_of: Callable[[int, int], tuple[np.ndarray, list[int]]],
+                  instance_classes: dict[int, int], **kwargs: Any) -> FilteredFrames:
+    """:func:`iter_filtered` gathered in memory (same arguments; ``instance_classes``: class of every mask id)."""
+    return _gather(list(iter_filtered(left, method, masks_of, **kwargs)), instance_classes)
+
+
+def _gather(frames: list[FilteredFrame], instance_classes: dict[int, int]) -> FilteredFrames:
+    right = [f.right for f in frames]
+    return FilteredFrames(
+        left=np.stack([f.left for f in frames]),
+        right=None if right[0] is None else np.stack(right),  # type: ignore[arg-type]
+        label_maps=np.stack([f.label_map for f in frames]),
+        instance_classes=dict(sorted(instance_classes.items())),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """What :func:`plan_filter` decided for a sequence: the inputs, masks and report of a filter run."""
+
+    seq: Any
+    left_paths: list[Path]
+    right_paths: list[Path] | None
+    grey: bool
+    masks_of: Callable[[int, int], tuple[np.ndarray, list[int]]]
+    instance_classes: dict[int, int]
+    inpainter: Any
+    report: dict
+
+
+class _Images(Sequence):
+    """Images read by index from files (:func:`read_image`), so a long sequence is never all in memory."""
+
+    def __init__(self, paths: list[Path]):
+        self.paths = paths
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, i):  # type: ignore[override]  # an int index only
+        from privslam_jax.data.images import read_image
+
+        return read_image(self.paths[i])
+
+
+def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector_path: Path | None,
+                 model_path: Path | None, dilation: int, conf: float | None, propagate: int, tta: bool,
+                 allow_domain_mismatch: bool) -> _Plan:
+    """Open ``sequence``, pick the detector and inpainter, run the detector over every frame (refusing bad
+    frames before anything is written) and return the per-frame mask source and the report."""
     from privslam_jax.data.images import read_image
     from privslam_jax.data.kitti import KittiSequence
-    from privslam_jax.inpaint.filter import FILTER_METHODS, Inpainter, filter_frame
+    from privslam_jax.inpaint.filter import FILTER_METHODS, Inpainter
     from privslam_jax.inpaint.masks import boxes_to_masks, instance_masks
 
     if method not in FILTER_METHODS:
@@ -177,88 +283,195 @@ def filter_sequence(
         report["inpainter"] = {"weights": str(model_path) if model_path is not None else f"embedded ({domain})",
                                "config": dataclasses.asdict(inpainter.config)}
 
-    out = Path(out)
-    out_dir = out / "sequences" / seq.name if kitti else out / seq.name
-    if out_dir.resolve() == seq.path.resolve():
-        raise ValueError("--out must differ from the input sequence's root (it would overwrite the originals)")
-    poses_out = out / "poses" / f"{seq.name}.txt"
-    companions = (poses_out,) if kitti else ()
-    check_run_folder(out_dir, overwrite, companions)  # refuse now; claim once the frames passed their checks
     stems = [p.stem for p in seq.image_paths]
+    right_paths = None
     if kitti:
-        grey_input = seq.left_dir.name in ("image_0", "image_1")
+        grey = seq.left_dir.name in ("image_0", "image_1")
+        left_paths = [seq.left_dir / f"{t}.png" for t in stems]
         right_dir = seq.path / {"image_2": "image_3", "image_0": "image_1"}[seq.left_dir.name]
-        folders = [([seq.left_dir / f"{t}.png" for t in stems], out_dir / seq.left_dir.name)]
         if masks_source == "detect" and right_dir.is_dir():
-            folders.append(([right_dir / f"{t}.png" for t in stems], out_dir / right_dir.name))
+            right_paths = [right_dir / f"{t}.png" for t in stems]
     else:
-        grey_input = seq.grey
-        folders = [(seq.image_paths, out_dir)]
-
-    detections = {}
-    if detector is not None:
-        from privslam_jax.detect.temporal import detect_sequence
-
-        runs = _consecutive_runs(stems)
-        report["runs"] = [[stems[a], stems[b - 1]] for a, b in runs]
-        for k, (src, _) in enumerate(folders):
-            dets_k, origins_k = [], []
-            for a, b in runs:  # propagation never crosses a gap in the frame numbers
-                images = [read_image(path) for path in src[a:b]]
-                for path, im in zip(src[a:b], images):  # refuse before anything is written
-                    if im.shape[:2] != (seq.camera.height, seq.camera.width):
-                        raise ValueError(f"{path} is {im.shape[1]}x{im.shape[0]}, the sequence's frames are "
-                                         f"{seq.camera.width}x{seq.camera.height}")
-                d, o = detect_sequence(detector, images, propagation, (1.0, 1.5) if tta else None)
-                dets_k, origins_k = dets_k + d, origins_k + o
-            detections[k] = (dets_k, origins_k)
-        dets, origins = detections[0]
-        counts = np.array([np.bincount(o, minlength=3) for o in origins]).reshape(-1, 3)
-        report["masks_per_frame"] = {"detected": counts[:, 0].tolist(), "promoted": counts[:, 1].tolist(),
-                                     "propagated": counts[:, 2].tolist()}
-        report["frames_without_masks"] = int((counts.sum(1) == 0).sum())
-
-    manifest = claim_run_folder(out_dir, "filter", {
-        "sequence": str(sequence), "method": method, "masks": masks_source, "detector": detector_path,
-        "model": model_path, "dilation": dilation, "seed": seed, "conf": conf, "propagate": propagate, "tta": tta,
-        "allow_domain_mismatch": allow_domain_mismatch}, overwrite, companions)
-    for _, d in folders:
-        d.mkdir(parents=True, exist_ok=True)
-    (out_dir / "masks").mkdir(exist_ok=True)
-    for name in ("calib.txt", "times.txt"):
-        if (seq.path / name).is_file():
-            write_atomic(out_dir / name, (seq.path / name).read_bytes())
-    if seq.poses_path is not None:
-        write_atomic(poses_out, seq.poses_path.read_bytes())
-
-    classes: dict[int, int] = {}
-    next_id = 1  # detections get sequence-unique ids
+        grey, left_paths = seq.grey, list(seq.image_paths)
     h, w = seq.camera.height, seq.camera.width
-    for i in tqdm(range(len(seq)), desc=f"filter {method}", disable=not progress):
-        stem = stems[i]
-        for k, (src, dst) in enumerate(folders):
-            image = read_image(src[i])
-            if image.shape[:2] != (h, w):
-                raise ValueError(f"{src[i]} is {image.shape[1]}x{image.shape[0]}, the sequence's frames are {w}x{h}")
-            if masks_source == "gt":
-                frame = seq[i]
-                ids = sorted(int(x) for x in np.unique(frame.instance_ids[frame.instance_ids > 0]))
-                masks = instance_masks(frame.instance_ids, np.asarray(ids, np.int64), dilation)
-                for j in ids:
-                    classes[j] = int(seq.instance_classes.get(j, -1))
-            else:
-                det = detections[k][0][i]
-                boxes = np.asarray(det.boxes, np.float64).reshape(-1, 4)
-                masks = boxes_to_masks(boxes, h, w, dilation)
-                ids = list(range(next_id, next_id + len(boxes)))
-                next_id += len(boxes)
-                for j, c in zip(ids, np.asarray(det.class_ids).tolist(), strict=True):
-                    classes[j] = int(c)
-            filtered = filter_frame(image, masks, method, inpainter=inpainter, seed=seed + i)
-            _write_image(dst / f"{stem}.png", filtered, grey_input)
+    classes: dict[int, int] = {}
+
+    if detector is None:
+        def masks_of(i: int, k: int) -> tuple[np.ndarray, list[int]]:
+            inst = seq.instance_ids(i)
+            ids = sorted(int(x) for x in np.unique(inst[inst > 0]))
+            return instance_masks(inst, np.asarray(ids, np.int64), dilation), ids
+
+        for i in range(len(seq)):  # the class of every instance id that occurs
+            ids_i = seq.instance_ids(i)
+            for j in np.unique(ids_i[ids_i > 0]).tolist():
+                classes[int(j)] = int(seq.instance_classes.get(int(j), -1))
+        return _Plan(seq, left_paths, right_paths, grey, masks_of, classes, inpainter, report)
+
+    from privslam_jax.detect.temporal import detect_sequence
+
+    runs = _consecutive_runs(stems)
+    report["runs"] = [[stems[a], stems[b - 1]] for a, b in runs]
+    detections: list[list[Any]] = []
+    origins: list[Any] = []
+    for k, paths in enumerate([left_paths] + ([right_paths] if right_paths is not None else [])):
+        dets_k: list[Any] = []
+        for a, b in runs:  # propagation never crosses a gap in the frame numbers
+            images = [read_image(path) for path in paths[a:b]]
+            for path, im in zip(paths[a:b], images):  # refuse before anything is written
+                if im.shape[:2] != (h, w):
+                    raise ValueError(f"{path} is {im.shape[1]}x{im.shape[0]}, the sequence's frames are {w}x{h}")
+            d, o = detect_sequence(detector, images, propagation, (1.0, 1.5) if tta else None)
+            dets_k += d
             if k == 0:
-                write_image_file(out_dir / "masks" / f"{stem}.png", _label_map(masks, ids, (h, w)))
-    write_atomic(out_dir / "instance_classes.json", json.dumps({str(k): v for k, v in sorted(classes.items())}))
+                origins += o
+        detections.append(dets_k)
+    counts = np.array([np.bincount(o, minlength=3) for o in origins]).reshape(-1, 3)
+    report["masks_per_frame"] = {"detected": counts[:, 0].tolist(), "promoted": counts[:, 1].tolist(),
+                                 "propagated": counts[:, 2].tolist()}
+    report["frames_without_masks"] = int((counts.sum(1) == 0).sum())
+    ids_of: dict[tuple[int, int], list[int]] = {}
+    next_id = 1  # detections get sequence-unique ids, frame by frame, left before right
+    for i in range(len(seq)):
+        for k, dets_k in enumerate(detections):
+            n = len(np.asarray(dets_k[i].boxes).reshape(-1, 4))
+            ids_of[i, k] = list(range(next_id, next_id + n))
+            next_id += n
+            for j, c in zip(ids_of[i, k], np.asarray(dets_k[i].class_ids).tolist(), strict=True):
+                classes[j] = int(c)
+
+    def masks_of(i: int, k: int) -> tuple[np.ndarray, list[int]]:
+        boxes = np.asarray(detections[k][i].boxes, np.float64).reshape(-1, 4)
+        return boxes_to_masks(boxes, h, w, dilation), ids_of[i, k]
+
+    return _Plan(seq, left_paths, right_paths, grey, masks_of, classes, inpainter, report)
+
+
+def filter_sequence_in_memory(
+    sequence: Path,
+    method: str,
+    masks_source: str | None = None,
+    detector_path: Path | None = None,
+    model_path: Path | None = None,
+    dilation: int = 4,
+    seed: int = 0,
+    progress: bool = True,
+    conf: float | None = None,
+    propagate: int = 0,
+    tta: bool = False,
+    allow_domain_mismatch: bool = False,
+    out: Path | None = None,
+    overwrite: bool = False,
+) -> tuple[FilteredFrames, dict, Path | None]:
+    """:func:`filter_sequence` with the result in memory: ``(filtered frames, filter report, folder)``.
+
+    The same frames, masks and report as the files :func:`filter_sequence` writes (the input is
+    read from ``sequence``).  ``out``: also write them there in the same pass, as
+    :func:`filter_sequence` does (the written folder is returned; ``None``: nothing is written).
+    """
+    frames, report, folder = _run_filter(Path(sequence), out, method, masks_source, detector_path, model_path, dilation,
+                                         seed, progress, conf, propagate, tta, allow_domain_mismatch, overwrite, True)
+    assert frames is not None
+    return frames, report, folder
+
+
+def filter_sequence(
+    sequence: Path,
+    out: Path,
+    method: str,
+    masks_source: str | None = None,
+    detector_path: Path | None = None,
+    model_path: Path | None = None,
+    dilation: int = 4,
+    seed: int = 0,
+    progress: bool = True,
+    conf: float | None = None,
+    propagate: int = 0,
+    tta: bool = False,
+    allow_domain_mismatch: bool = False,
+    overwrite: bool = False,
+) -> Path:
+    """Filter every frame of ``sequence`` into ``out``; returns the written sequence folder.
+
+    The sequence folder is a run folder (:mod:`privslam_jax.runs`): its ``manifest.json`` says
+    ``"complete": true`` only after every frame and report is written; a folder holding an earlier
+    run is refused unless ``overwrite``, which clears it (and its ``poses/NAME.txt``) first.
+
+    With ``masks_source="detect"`` the detector runs over the whole sequence first (threshold
+    ``conf``, default the paper's 0.4; ``tta`` and ``propagate`` as in
+    :func:`privslam_jax.detect.temporal.detect_sequence`), then each frame is filled.
+    ``method="edgeconnect"`` without ``model_path`` uses the embedded inpainter made for the frames:
+    the synthetic-world one on ``privslam synth`` output, the real-frame one on anything else.
+    ``filter_report.json`` records the detector (and its training domain), the inpainter, the settings and the
+    number of masks per frame by origin (detected, promoted low-score, propagated).
+    Frames are filtered and written one at a time (:func:`iter_filtered`), never all held in memory;
+    :func:`filter_sequence_in_memory` keeps them.
+    """
+    _, _, folder = _run_filter(Path(sequence), Path(out), method, masks_source, detector_path, model_path, dilation,
+                               seed, progress, conf, propagate, tta, allow_domain_mismatch, overwrite, False)
+    assert folder is not None
+    return folder
+
+
+def _run_filter(sequence: Path, out: Path | None, method: str, masks_source: str | None, detector_path: Path | None,
+                model_path: Path | None, dilation: int, seed: int, progress: bool, conf: float | None, propagate: int,
+                tta: bool, allow_domain_mismatch: bool, overwrite: bool, keep: bool
+                ) -> tuple[FilteredFrames | None, dict, Path | None]:
+    kitti = any((sequence / d).is_dir() for d in ("image_2", "image_0"))
+    out_dir = manifest = None
+    companions: tuple[Path, ...] = ()
+    if out is not None:
+        out_dir = out / "sequences" / sequence.name if kitti else out / sequence.name
+        if sequence.is_dir() and out_dir.resolve() == sequence.resolve():
+            raise ValueError("--out must differ from the input sequence's root (it would overwrite the originals)")
+        companions = (out / "poses" / f"{sequence.name}.txt",) if kitti else ()
+        check_run_folder(out_dir, overwrite, companions)  # refuse now; claim once the frames passed their checks
+    plan = _plan_filter(sequence, method, masks_source, detector_path, model_path, dilation, conf, propagate, tta,
+                        allow_domain_mismatch)
+    seq = plan.seq
+    frames: Iterable[FilteredFrame] = iter_filtered(
+        _Images(plan.left_paths), method, plan.masks_of,
+        right=None if plan.right_paths is None else _Images(plan.right_paths), inpainter=plan.inpainter, seed=seed,
+        grey=plan.grey, shape=(seq.camera.height, seq.camera.width), progress=progress,
+    )
+    if keep:
+        frames = list(frames)
+    if out_dir is not None:
+        manifest = claim_run_folder(out_dir, "filter", {
+            "sequence": str(sequence), "method": method, "masks": plan.report["masks"], "detector": detector_path,
+            "model": model_path, "dilation": dilation, "seed": seed, "conf": conf, "propagate": propagate, "tta": tta,
+            "allow_domain_mismatch": allow_domain_mismatch}, overwrite, companions)
+        for name in ("calib.txt", "times.txt"):
+            if (seq.path / name).is_file():
+                write_atomic(out_dir / name, (seq.path / name).read_bytes())
+        if seq.poses_path is not None and companions:
+            write_atomic(companions[0], seq.poses_path.read_bytes())
+        if kitti:
+            left_dir = out_dir / seq.left_dir.name
+            right_dir = out_dir / {"image_2": "image_3", "image_0": "image_1"}[seq.left_dir.name]
+        else:
+            left_dir = right_dir = out_dir
+        write_filtered(out_dir, left_dir, right_dir, [p.stem for p in seq.image_paths], frames, plan.instance_classes,
+                       plan.report)
+        complete_run_folder(out_dir, manifest)  # last: the run finished
+    if not keep:
+        return None, plan.report, out_dir
+    return _gather(list(frames), plan.instance_classes), plan.report, out_dir
+
+
+def write_filtered(out_dir: Path, left_dir: Path, right_dir: Path, stems: Sequence[str],
+                   frames: Iterable[FilteredFrame], instance_classes: dict[int, int], report: dict) -> None:
+    """The file sink of a filter run: ``left_dir/STEM.png`` (and ``right_dir``), ``out_dir/masks/STEM.png``,
+    ``instance_classes.json`` and ``filter_report.json``, every file written atomically."""
+    (out_dir / "masks").mkdir(parents=True, exist_ok=True)
+    left_dir.mkdir(parents=True, exist_ok=True)
+    for f in frames:
+        stem = stems[f.index]
+        for image, d in ((f.left, left_dir), (f.right, right_dir)):
+            if image is None:
+                continue
+            d.mkdir(parents=True, exist_ok=True)
+            write_image_file(d / f"{stem}.png", image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        write_image_file(out_dir / "masks" / f"{stem}.png", f.label_map)
+    write_atomic(out_dir / "instance_classes.json", json.dumps({str(k): v for k, v in sorted(instance_classes.items())}))
     write_atomic(out_dir / "filter_report.json", json.dumps(report, indent=1))
-    complete_run_folder(out_dir, manifest)  # last: the run finished
-    return out_dir

@@ -10,9 +10,8 @@ reusable, tested parts:
 * :func:`filter_world` — every frame filtered with the ground-truth instance masks (dilation 4), as
   ``privslam filter --masks gt`` writes them (same masks, same per-frame seed ``seed + i``, same
   8-bit rounding);
-* :func:`slam_grey` — a frame as ``privslam slam`` reads it (``KittiSequence(grey=True)``: OpenCV's
-  BGR → grey on the 8-bit file, divided by 255), so that SLAM in memory sees the same pixels as
-  SLAM on the files;
+* :func:`~privslam_jax.data.images.grey_as_read` (not here) gives a frame as ``privslam slam``
+  reads it, so that SLAM in memory sees the same pixels as SLAM on the files;
 * :func:`sequence_proxy` — the proxy of a (filtered) sequence: ``accuracy_loss`` of the frame pairs
   ``(t, t + gap)``, ``t = 0, stride, 2·stride, …``, at the frames' 2×2 box-averaged size (640×192 →
   320×96, the size of ``tests/test_tradeoff_objectives.py``), averaged over the pairs whose solve
@@ -36,7 +35,6 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import cv2
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -49,7 +47,7 @@ from privslam_jax.types import Camera
 
 __all__ = ["ProxyResult", "ProxySettings", "World", "box_downsample", "downsample_depth", "filter_world", "frame_pairs",
            "pair_loss", "paired_changes", "relative_pose", "render_world", "scale_intrinsics", "sequence_proxy",
-           "slam_grey", "spearman", "summarize_changes"]
+           "spearman", "summarize_changes"]
 
 _DEFAULT_ALIGNMENT = PhotometricConfig()
 
@@ -120,25 +118,21 @@ def filter_world(world: World, method: str, inpainter: Any = None, seed: int = 0
     """``(N, H, W, 3)`` uint8: every frame filtered with ``method`` on its ground-truth masks, as
     ``privslam filter --masks gt --method METHOD`` writes it (frame ``i`` filtered with seed ``seed + i``,
     rounded to 8 bits).  ``method="none"``: the frames themselves."""
-    from privslam_jax.inpaint.filter import filter_frame
+    from privslam_jax.inpaint.sequence import iter_filtered
 
     if method == "none":
         return world.rgb8
-    out = np.empty_like(world.rgb8)
-    for i in range(len(world)):
-        image = world.rgb8[i].astype(np.float32) / np.float32(255)  # read_image
+
+    def masks_of(i: int, k: int) -> tuple[np.ndarray, list[int]]:
         masks = frame_masks(world.instance_ids[i], dilation)
-        filtered = filter_frame(image, masks, method, inpainter=inpainter, seed=seed + i)
-        out[i] = np.clip(np.rint(filtered * 255.0), 0, 255).astype(np.uint8)  # privslam filter's writer
+        return masks, list(range(1, len(masks) + 1))
+
+    out = np.empty_like(world.rgb8)
+    for f in iter_filtered(world.rgb8, method, masks_of, inpainter=inpainter, seed=seed):
+        out[f.index] = f.left
         if progress is not None:
-            progress(i)
+            progress(f.index)
     return out
-
-
-def slam_grey(rgb8: Shaped[np.ndarray, "H W 3"]) -> Float[np.ndarray, "H W"]:
-    """A uint8 RGB frame as ``privslam slam`` reads its PNG: OpenCV BGR → grey, float32 / 255."""
-    bgr = np.ascontiguousarray(np.asarray(rgb8, np.uint8)[..., ::-1])
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(np.float32) / np.float32(255.0)
 
 
 # --- the proxy --------------------------------------------------------------------------------------
