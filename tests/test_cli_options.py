@@ -210,6 +210,10 @@ TRAIN_CASES = [
     ("tradeoff", ["--workdir", MISSING, "--lr", "0"], "--lr"),
     ("tradeoff", ["--workdir", MISSING, "--worlds", "5-2"], "--worlds"),
     ("tradeoff", ["--workdir", MISSING, "--frames", "1"], "--frames"),
+    ("tradeoff", ["--workdir", MISSING, "--init", MISSING], "--init"),
+    ("tradeoff", ["--workdir", MISSING, "--detector", MISSING], "--detector"),
+    ("tradeoff", ["--workdir", MISSING, "--init", str(REPO / "README.md")], "--init"),
+    ("tradeoff", ["--workdir", MISSING, "--detector", str(REPO / "privslam_jax/assets/inpainter_cpu16.npz")], "--detector"),
 ]
 
 

@@ -60,8 +60,14 @@ def main(argv: list[str] | None = None) -> int:
                                  checkpoint_every=a.checkpoint_every, seed=a.seed)
     if config.frames_per_world <= config.gap:
         p.error(f"--frames must exceed the pair gap {config.gap}")
-    inpainter = Inpainter.embedded("synthetic") if a.init is None else Inpainter.load(a.init)
-    detector, detector_params = DetectorModel.split(load_detector(a.detector)[0])
+    try:
+        inpainter = Inpainter.embedded("synthetic") if a.init is None else Inpainter.load(a.init)
+    except (OSError, ValueError) as err:  # missing, damaged or not an inpainter checkpoint
+        p.error(f"argument --init: {err}")
+    try:
+        detector, detector_params = DetectorModel.split(load_detector(a.detector)[0])
+    except (OSError, ValueError) as err:
+        p.error(f"argument --detector: {err}")
     trained = train_tradeoff(config, inpainter, detector_params, detector, a.workdir, progress=not a.quiet)
     print(f"trained {config.steps} steps (λ_p {config.privacy_weight}, λ_a {config.accuracy_weight}); "
           f"losses per step in {a.workdir / 'log.csv'}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["write_atomic", "write_figure", "write_npz"]
+__all__ = ["trim_log", "write_atomic", "write_figure", "write_npz"]
 
 
 def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
@@ -46,3 +46,27 @@ def write_npz(path: str | os.PathLike, *, compressed: bool = False, **arrays) ->
     buf = io.BytesIO()
     (np.savez_compressed if compressed else np.savez)(buf, **arrays)
     write_atomic(path, buf.getvalue())
+
+
+def trim_log(path: str | os.PathLike, last_step: int) -> None:
+    """Cut a training run's CSV log back to the checkpoint it resumes from.
+
+    Keeps the header and the whole rows (ending in a newline, as many fields as the header) whose
+    first field, the step, is at most ``last_step``; a row cut short when the run was killed, and the
+    rows logged after its last checkpoint, are dropped.  The log is replaced atomically
+    (:func:`write_atomic`), so a crash here loses nothing.  A missing log is left missing.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return
+    rows = path.read_text().splitlines(keepends=True)
+    if not rows or not rows[0].endswith("\n"):
+        write_atomic(path, "")
+        return
+    fields = rows[0].count(",")
+    keep = [rows[0]]
+    for r in rows[1:]:
+        head = r.split(",", 1)[0]
+        if r.endswith("\n") and r.count(",") == fields and head.isdigit() and int(head) <= last_step:
+            keep.append(r)
+    write_atomic(path, "".join(keep))

@@ -36,6 +36,7 @@ import optax
 from flax import nnx
 from tqdm import tqdm
 
+from privslam_jax.data.files import trim_log
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint import losses as L
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, Discriminator, EdgeGenerator, InpaintGenerator
@@ -408,9 +409,7 @@ def train(
             last.bias[...] = jnp.zeros_like(last.bias[...])
     end = config.total_steps if max_steps is None else min(max_steps, config.total_steps)
     log_path = workdir / "log.csv"
-    if log_path.is_file():  # drop rows logged after the checkpoint we resume from
-        rows = log_path.read_text().splitlines(keepends=True)
-        log_path.write_text("".join(r for r in rows[:1] + [r for r in rows[1:] if int(r.split(",", 1)[0]) <= start]))
+    trim_log(log_path, start)  # drop rows logged after the checkpoint we resume from, and a row cut short
     bar = tqdm(range(start, end), initial=start, total=config.total_steps, disable=not progress, desc="inpaint")
     for step in bar:
         stage = config.stage_at(step)

@@ -37,6 +37,7 @@ import optax
 from flax import nnx
 from jaxtyping import Array, Bool, Float, PyTree
 
+from privslam_jax.data.files import trim_log
 from privslam_jax.inpaint.differentiable import (
     FilterConstants,
     FilterGeometry,
@@ -238,9 +239,7 @@ def train_tradeoff(
         next(data)
     end = config.steps if max_steps is None else min(max_steps, config.steps)
     log_path = workdir / "log.csv"
-    if log_path.is_file():  # drop rows logged after the checkpoint we resume from
-        rows = log_path.read_text().splitlines(keepends=True)
-        log_path.write_text("".join(rows[:1] + [r for r in rows[1:] if int(r.split(",", 1)[0]) <= start]))
+    trim_log(log_path, start)  # drop rows logged after the checkpoint we resume from, and a row cut short
     bar = tqdm(range(start, end), initial=start, total=config.steps, disable=not progress, desc="tradeoff")
     for step in bar:
         sample = next(data)
