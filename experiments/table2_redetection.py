@@ -45,38 +45,14 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 configure_xla()
 
 from privslam_jax._shared import shared_dir  # noqa: E402
-from privslam_jax.detect import PRIVACY_CLASSES, Detector, DetectorConfig  # noqa: E402
+from privslam_jax.detect import Detector  # noqa: E402
 from privslam_jax.data.synthetic import parse_seeds  # noqa: E402
-from privslam_jax.detect.decode import box_iou  # noqa: E402
 from privslam_jax.inpaint.baselines import LEAKY_METHODS  # noqa: E402
 from privslam_jax.inpaint.filter import FILTER_METHODS, Inpainter, filter_frame  # noqa: E402
 from privslam_jax.inpaint.masks import boxes_to_masks  # noqa: E402
+from privslam_jax.metrics.redetection import detection_arrays, privacy_config, refound  # noqa: E402
 
-PRIVACY_NAMES = {"person", "bicycle", "car", "motorcycle", "bus", "truck"}
-IOU = 0.5
 DILATION = 4
-
-
-def privacy_config(detector: Detector) -> DetectorConfig:
-    """The paper's preset (conf 0.4) restricted to the detector's privacy classes (by name)."""
-    ids = tuple(sorted(i for i, n in detector.names.items() if n in PRIVACY_NAMES))
-    if not ids:  # unnamed classes: assume COCO ids
-        ids = PRIVACY_CLASSES
-    return DetectorConfig(conf=0.4, iou=0.7, classes=ids)
-
-
-def _arrays(det) -> tuple[np.ndarray, np.ndarray]:
-    return np.asarray(det.boxes, np.float64).reshape(-1, 4), np.asarray(det.class_ids, np.int64).reshape(-1)
-
-
-def refound(orig, filt) -> int:
-    """Objects of ``orig`` matched by a same-class detection of ``filt`` with IoU ≥ 0.5."""
-    (bo, co), (bf, cf) = _arrays(orig), _arrays(filt)
-    if len(bo) == 0 or len(bf) == 0:
-        return 0
-    iou = box_iou(bo, bf)
-    same = co[:, None] == cf[None, :]
-    return int(np.any((iou >= IOU) & same, axis=1).sum())
 
 
 def redetection(frames, detector: Detector, methods, inpainter, grey: bool, desc: str):
@@ -85,7 +61,7 @@ def redetection(frames, detector: Detector, methods, inpainter, grey: bool, desc
     used = 0
     for i, image in enumerate(tqdm(frames, desc=desc)):
         orig = detector.detect([image])[0]
-        boxes, _ = _arrays(orig)
+        boxes, _ = detection_arrays(orig)
         if len(boxes) == 0:
             continue
         used += 1

@@ -19,6 +19,7 @@ from privslam_jax._shared import shared_dir
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.py"))
 STRICT_CELL = 'import warnings\nwarnings.filterwarnings("error", module=r"privslam_jax(\\..*)?$")'
+PARETO_JSON = Path(__file__).resolve().parents[1] / "results" / "pareto_tradeoff.json"
 HAS_KITTI = shared_dir() is not None and (shared_dir() / "data/kitti_odometry/sequences/seq1").is_dir()
 
 EXPECTED = {
@@ -37,6 +38,20 @@ EXPECTED = {
         ],
         # frames + boxes grid, stereo pair, camera path (+ the real KITTI frame and path)
         "figures": 4 if HAS_KITTI else 3,
+    },
+    # TradeoffConfig at 320x96 with steps=2 and 8-frame worlds; the privacy loss of a frame whose
+    # objects are all hidden sits at its floor tau*log(A*C) = 0.0962 (docs/tradeoff.md).
+    "03_privacy_accuracy_tradeoff": {
+        "stdout": [
+            r"^tiny run: 320x96 frames, 2 steps$",
+            r"^pair \(5, 6\): \d+ objects in the target",
+            r"^edgeconnect +0\.09\d\d +0\.\d{4} +\d+\.\d{4}$",
+            r"^trained 2 steps: loss \d\.\d{4} -> \d\.\d{4} \(accuracy term dropped in [0-2]\)$",
+            r"^front of \d+ filters from pareto_tradeoff\.json$" if PARETO_JSON.is_file()
+            else r"^pareto_tradeoff\.json not found: run experiments/pareto_tradeoff\.py first$",
+        ],
+        # the filters on one frame, the loss curve (+ the front when the results file exists)
+        "figures": 3 if PARETO_JSON.is_file() else 2,
     },
 }
 

@@ -8,6 +8,9 @@ References, independent of the module:
 * the proxy: ``accuracy_loss`` called pair by pair on frames downsampled by OpenCV's ``INTER_AREA``,
   with the intrinsics of the world rendered directly at the smaller size and ``T_gt`` from the frames'
   poses;
+* the stereo world's right frames and the object-free frames: the ``image_3/`` and ``background/`` files
+  ``privslam synth --stereo`` writes; the right frames filtered by ``filter_frame`` frame by frame on
+  masks built directly from the renderer's right-view ids;
 * the depth reduction: a per-block Python loop;
 * the paired changes and medians: plain numpy on hand-made records; the rank correlation:
   ``scipy.stats.spearmanr`` called directly.
@@ -44,6 +47,8 @@ from privslam_jax.tradeoff.proxy import (
 
 TINY = SynthConfig(width=320, height=96, num_frames=4, seed=300001)
 """One small world for every test (the renderer compiles once per size)."""
+TINY_STEREO = SynthConfig(width=320, height=96, num_frames=3, seed=400001, stereo=True)
+"""A small stereo world (the same as ``tests/test_pareto_tradeoff.py``'s: one compile per session)."""
 
 
 @pytest.fixture(scope="module")
@@ -196,3 +201,44 @@ def test_paired_changes_medians_and_spearman_against_numpy_and_scipy():
     assert math.isnan(spearman([1, 1, 1, 1], [1, 2, 3, 4])[0])
     with pytest.raises(ValueError):
         spearman([1, 2, 3], [1, 2])
+
+
+def test_stereo_world_right_frames_background_and_right_filtering(tmp_path, tiny_world):
+    """``render_world`` of a stereo config: the right frames and the object-free left frames equal the
+    ``image_3/`` and ``background/`` files of ``privslam synth --stereo``, the right ids are the renderer's
+    right-view ids; ``filter_world(right=True)`` fills the right frames on masks of those ids (dilation 4,
+    seed i) — against ``filter_frame`` on masks dilated by a 4-px disc here; a mono world has no right views."""
+    from privslam_jax.data.images import read_raw
+    from privslam_jax.data.kitti_write import write_kitti_sequence
+    from privslam_jax.inpaint.filter import filter_frame
+
+    assert tiny_world.right_rgb8 is None and tiny_world.right_instance_ids is None
+    with pytest.raises(ValueError, match="stereo"):
+        filter_world(tiny_world, "black", right=True)
+    world = render_world(TINY_STEREO)
+    seq = make_sequence(TINY_STEREO)
+    seq_dir = write_kitti_sequence(seq, tmp_path / "stereo", progress=False)
+    assert world.right_rgb8 is not None and world.right_instance_ids is not None
+    for i in range(len(world)):
+        def bgr(folder: str, i: int = i) -> np.ndarray:  # the file as RGB
+            return read_raw(seq_dir / folder / f"{i:06d}.png")[..., ::-1]
+
+        np.testing.assert_array_equal(world.right_rgb8[i], bgr("image_3"), err_msg=f"right frame {i}")
+        np.testing.assert_array_equal(world.rgb8[i], bgr("image_2"), err_msg=f"left frame {i}")
+        np.testing.assert_array_equal(world.background_rgb8[i], bgr("background"), err_msg=f"background {i}")
+        np.testing.assert_array_equal(world.right_instance_ids[i], seq[i].instance_ids_right)
+    assert (world.right_instance_ids > 0).any() and (world.right_instance_ids != world.instance_ids).any()
+    hidden = world.instance_ids > 0
+    assert (world.background_rgb8[hidden] != world.rgb8[hidden]).any()  # the objects are gone ...
+    np.testing.assert_array_equal(world.background_rgb8[~hidden], world.rgb8[~hidden])  # ... and nothing else
+    r = np.arange(-4, 5)
+    kernel = (np.hypot(r[:, None], r[None, :]) <= 4).astype(np.uint8)  # every pixel within 4 px
+    for method in ("none", "noise25"):
+        got = filter_world(world, method, right=True)
+        for i in range(len(world)):
+            ids = world.right_instance_ids[i]
+            masks = np.stack([cv2.dilate((ids == k).astype(np.uint8), kernel).astype(bool)
+                              for k in np.unique(ids[ids > 0])])
+            want = world.right_rgb8[i] if method == "none" else filter_frame(world.right_rgb8[i], masks, method, seed=i)
+            np.testing.assert_array_equal(got[i], want, err_msg=f"{method} right frame {i}")
+    assert (filter_world(world, "noise25", right=True) != world.right_rgb8).any()

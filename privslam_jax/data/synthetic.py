@@ -132,6 +132,9 @@ class SynthFrame:
     """(4, 4) float64 camera-to-world pose of the left camera."""
     background_depth: np.ndarray | None = None
     """(H, W) float32 z-depth of the object-free scene (0 = sky)."""
+    instance_ids_right: np.ndarray | None = None
+    """(H, W) int32 instance ids of the right camera (same ids as ``instance_ids``), or ``None`` when
+    not stereo."""
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -356,6 +359,7 @@ class SyntheticSequence:
             instance_of_box=inst_of_box,
             T_w_c=self._T_w_c[i].copy(),
             background_depth=np.asarray(v[0]["background_depth"], np.float32),
+            instance_ids_right=np.asarray(v[1]["instance_ids"], np.int32) if stereo else None,
         )
 
     def __iter__(self) -> Iterator[SynthFrame]:

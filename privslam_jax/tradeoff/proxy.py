@@ -6,10 +6,12 @@ for training a filter if it ranks filters as real SLAM does.  This module gives 
 reusable, tested parts:
 
 * :func:`render_world` — a synthetic world rendered in memory, its frames quantised to 8 bits as
-  ``privslam synth`` writes them (``image_2/*.png``);
+  ``privslam synth`` writes them (``image_2/*.png``; with a stereo config also ``image_3/*.png`` and
+  the right camera's instance ids; the object-free ``background/*.png`` always);
 * :func:`filter_world` — every frame filtered with the ground-truth instance masks (dilation 4), as
   ``privslam filter --masks gt`` writes them (same masks, same per-frame seed ``seed + i``, same
-  8-bit rounding);
+  8-bit rounding); ``right=True`` filters the right frames with the right camera's masks the same
+  way (``privslam filter --masks gt`` leaves right frames alone: it has no right masks);
 * :func:`~privslam_jax.data.images.grey_as_read` (not here) gives a frame as ``privslam slam``
   reads it, so that SLAM in memory sees the same pixels as SLAM on the files;
 * :func:`sequence_proxy` — the proxy of a (filtered) sequence: ``accuracy_loss`` of the frame pairs
@@ -72,6 +74,12 @@ class World:
     """``(N,)`` seconds."""
     camera: Camera
     """The camera as ``privslam slam`` reads it from ``calib.txt`` (mono: the baseline is not used)."""
+    background_rgb8: np.ndarray
+    """``(N, H, W, 3)`` uint8 RGB of the left frames rendered without the privacy objects (``background/*.png``)."""
+    right_rgb8: np.ndarray | None = None
+    """``(N, H, W, 3)`` uint8 RGB of the right camera (``image_3/*.png``), or ``None`` when not stereo."""
+    right_instance_ids: np.ndarray | None = None
+    """``(N, H, W)`` uint16 instance ids of the right camera (same ids as the left), or ``None`` when not stereo."""
 
     def __len__(self) -> int:
         return len(self.rgb8)
@@ -84,25 +92,41 @@ class World:
 
 
 def render_world(config: Any) -> World:
-    """Render every frame of the synthetic world ``config`` (a :class:`~privslam_jax.data.synthetic.SynthConfig`)."""
+    """Render every frame of the synthetic world ``config`` (a :class:`~privslam_jax.data.synthetic.SynthConfig`);
+    with ``config.stereo`` also the right frames and their instance ids."""
     from privslam_jax.data.images import as_unit_image, like_input
     from privslam_jax.data.synthetic import make_sequence
 
+    def u8(image: np.ndarray) -> np.ndarray:
+        return like_input(as_unit_image(image), np.zeros(0, np.uint8))  # write_rgb's rounding
+
+    def ids16(ids: np.ndarray) -> np.ndarray:
+        if ids.size and int(ids.max()) > 65535:
+            raise ValueError("instance ids beyond 16 bits")
+        return ids
+
     seq = make_sequence(config)
     n, h, w = len(seq), config.height, config.width
+    stereo = bool(config.stereo)
     rgb8 = np.empty((n, h, w, 3), np.uint8)
+    background8 = np.empty((n, h, w, 3), np.uint8)
     depth = np.empty((n, h, w), np.float32)
     ids = np.empty((n, h, w), np.uint16)
+    right8 = np.empty((n, h, w, 3), np.uint8) if stereo else None
+    right_ids = np.empty((n, h, w), np.uint16) if stereo else None
     for i in range(n):
         f = seq[i]
-        rgb8[i] = like_input(as_unit_image(f.image), np.zeros(0, np.uint8))  # write_rgb's rounding
+        rgb8[i] = u8(f.image)
+        background8[i] = u8(f.background)
         depth[i] = f.depth
-        if f.instance_ids.size and int(f.instance_ids.max()) > 65535:
-            raise ValueError("instance ids beyond 16 bits")
-        ids[i] = f.instance_ids
+        ids[i] = ids16(f.instance_ids)
+        if right8 is not None and right_ids is not None:
+            right8[i] = u8(f.image_right)
+            right_ids[i] = ids16(f.instance_ids_right)
     cam = dataclasses.replace(seq.camera, baseline=float(config.baseline))
     return World(seed=int(config.seed), rgb8=rgb8, depth=depth, instance_ids=ids,
-                 poses=np.asarray(seq.poses, np.float64), timestamps=np.asarray(seq.timestamps, np.float64), camera=cam)
+                 poses=np.asarray(seq.poses, np.float64), timestamps=np.asarray(seq.timestamps, np.float64), camera=cam,
+                 background_rgb8=background8, right_rgb8=right8, right_instance_ids=right_ids)
 
 
 def frame_masks(instance_ids: np.ndarray, dilation: int = 4) -> np.ndarray:
@@ -114,21 +138,28 @@ def frame_masks(instance_ids: np.ndarray, dilation: int = 4) -> np.ndarray:
 
 
 def filter_world(world: World, method: str, inpainter: Any = None, seed: int = 0, dilation: int = 4,
-                 progress: Callable[[int], None] | None = None) -> np.ndarray:
+                 progress: Callable[[int], None] | None = None, right: bool = False) -> np.ndarray:
     """``(N, H, W, 3)`` uint8: every frame filtered with ``method`` on its ground-truth masks, as
     ``privslam filter --masks gt --method METHOD`` writes it (frame ``i`` filtered with seed ``seed + i``,
-    rounded to 8 bits).  ``method="none"``: the frames themselves."""
+    rounded to 8 bits).  ``method="none"``: the frames themselves.  ``right``: the right frames, each
+    filtered on the right camera's ground-truth masks in the same way (a stereo world only)."""
     from privslam_jax.inpaint.sequence import iter_filtered
 
+    if right:
+        if world.right_rgb8 is None or world.right_instance_ids is None:
+            raise ValueError("right=True needs a stereo world (render_world of a SynthConfig with stereo=True)")
+        frames, instance_ids = world.right_rgb8, world.right_instance_ids
+    else:
+        frames, instance_ids = world.rgb8, world.instance_ids
     if method == "none":
-        return world.rgb8
+        return frames
 
     def masks_of(i: int, k: int) -> tuple[np.ndarray, list[int]]:
-        masks = frame_masks(world.instance_ids[i], dilation)
+        masks = frame_masks(instance_ids[i], dilation)
         return masks, list(range(1, len(masks) + 1))
 
-    out = np.empty_like(world.rgb8)
-    for f in iter_filtered(world.rgb8, method, masks_of, inpainter=inpainter, seed=seed):
+    out = np.empty_like(frames)
+    for f in iter_filtered(frames, method, masks_of, inpainter=inpainter, seed=seed):
         out[f.index] = f.left
         if progress is not None:
             progress(f.index)
