@@ -93,7 +93,8 @@ class PipelineConfig:
     propagate: int = 0
     """Carry detections to this many frames before and after by optical flow (0: off)."""
     mode: str = "mono"
-    """SLAM input: ``"mono"`` or ``"stereo"`` (the right images are filtered with their own detections)."""
+    """SLAM input: ``"mono"`` or ``"stereo"`` (the right images are filtered with their own detections, or with
+    the right camera's ground-truth masks for ``masks="gt"``)."""
     slam: bool = True
     """Run SLAM on the original and the filtered frames."""
     attack: bool = True
@@ -538,7 +539,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
         seq, original, n = load_sequence_frames(data.sequence, config.mode)
         filtered = filt.frames
         if config.mode == "stereo" and filtered.right is None:
-            raise ValueError("stereo SLAM on the filtered frames needs the right images filtered too: use masks='detect'")
+            raise ValueError("stereo SLAM on the filtered frames needs the right images filtered too: use masks='detect' "
+                             "(the sequence has no right-camera ground-truth masks, masks_3/)")
         in_memory = (filtered.grey(i) if config.mode == "mono" else (filtered.grey(i), filtered.grey(i, right=True))
                      for i in range(n))
         for label, frames in (("original", original), ("filtered", in_memory)):

@@ -325,3 +325,35 @@ def test_run_without_ground_truth_skips_the_metrics_with_a_note(tmp_path, capsys
     assert all("ate_rmse_sim3" not in m for m in report["slam"].values())
     assert report["privacy"].get("units", "").startswith("SLAM units") or "skipped" in report["privacy"]
     assert (out / "report.html").is_file()
+
+
+def test_stereo_ground_truth_masks_filter_the_right_frames_too(tmp_path):
+    """``privslam synth --stereo`` writes the right camera's ids (``masks_3/``, equal to the renderer's);
+    ``filter --masks gt`` then hides the objects in the right frames with them: pixels outside the
+    dilated right masks untouched, inside changed; and the pipeline runs stereo SLAM on ground-truth masks."""
+    from privslam_jax.data.images import read_raw
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence
+    from privslam_jax.inpaint.masks import instance_masks
+
+    root = tmp_path / "s"
+    assert main(["synth", "--out", str(root), "--frames", "3", "--width", "160", "--height", "64", "--stereo",
+                 "--seed", "2", "--quiet"]) == 0
+    seq_dir = root / "sequences" / "synth"
+    rendered = make_sequence(SynthConfig(width=160, height=64, num_frames=3, seed=2, stereo=True))
+    assert main(["filter", str(seq_dir), "--out", str(tmp_path / "f"), "--method", "black", "--masks", "gt"]) == 0
+    out = tmp_path / "f" / "sequences" / "synth"
+    changed = 0
+    for i in range(3):
+        ids = read_raw(seq_dir / "masks_3" / f"{i:06d}.png")
+        np.testing.assert_array_equal(ids, rendered[i].instance_ids_right)
+        hidden = instance_masks(ids.astype(np.int32), None, 4).any(axis=0)
+        a = read_raw(seq_dir / "image_3" / f"{i:06d}.png")
+        b = read_raw(out / "image_3" / f"{i:06d}.png")
+        np.testing.assert_array_equal(a[~hidden], b[~hidden])
+        assert (b[hidden] == 0).all()  # black fill
+        changed += int(hidden.sum())
+    assert changed > 0
+    report = pipeline.run_pipeline(pipeline.PipelineConfig(frames=10, masks="gt", mode="stereo", filter_method="black",
+                                                           attack=False), tmp_path / "run", progress=False)
+    m = report.slam["filtered"].metrics
+    assert m["mode"] == "stereo" and m["frames"] == 10 and report.filter.frames.right is not None

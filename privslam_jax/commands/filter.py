@@ -11,8 +11,9 @@ writes ``DIR/sequences/<name>/`` with the filtered left images in the same image
 (``image_2`` or ``image_0``; grey sequences stay grey), ``calib.txt`` and ``times.txt`` copied,
 ``DIR/poses/<name>.txt`` copied when present, and ``masks/%06d.png``: uint16, pixel = the id of the
 (dilated) object that hid it (0 = untouched), with ``instance_classes.json`` (id → COCO class).
-The right camera is written only with ``--masks detect`` (each image filtered with its own
-detections); with ground-truth masks, which exist for the left camera only, it is left out.
+The right camera is written with ``--masks detect`` (each image filtered with its own
+detections) and, with ``--masks gt``, when the right camera's ground-truth ids exist (``masks_3/``,
+``privslam synth --stereo``); otherwise it is left out.
 
 ``--masks gt`` uses the synthetic ground-truth instance masks (``masks/`` written by
 ``privslam synth``); ``detect`` runs the YOLOv8 detector (``--detector``: an ultralytics ``.pt``

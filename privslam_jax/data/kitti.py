@@ -284,12 +284,14 @@ class KittiSequence:
             return read_image(self.right_dir / self.image_paths[i].name, grey=self.grey)
         return read_image(self.image_paths[i], grey=self.grey)
 
-    def instance_ids(self, i: int) -> np.ndarray:
+    def instance_ids(self, i: int, right: bool = False) -> np.ndarray:
         """``(H, W)`` int32 ``masks/`` map of frame ``i`` only (0 = none; object ids from ``privslam synth``
-        or the removed objects of ``privslam filter``)."""
-        p = self._extra("masks", self._check(i))
+        or the removed objects of ``privslam filter``); ``right``: the right camera's ``masks_3/``
+        (``privslam synth --stereo``)."""
+        folder = "masks_3" if right else "masks"
+        p = self._extra(folder, self._check(i))
         if p is None:
-            raise FileNotFoundError(f"{self.path / 'masks'} does not exist")
+            raise FileNotFoundError(f"{self.path / folder} does not exist")
         return self._read_map(p).astype(np.int32)
 
     def _check(self, i: int) -> int:

@@ -106,6 +106,8 @@ def write_kitti_sequence(
                 write_uint16(seq_dir / "depth_3" / f"{stem}.png", _depth_png(f.depth_right))
             if getattr(f, "background_right", None) is not None:
                 write_rgb(seq_dir / "background_3" / f"{stem}.png", np.asarray(f.background_right))
+            if getattr(f, "instance_ids_right", None) is not None:
+                write_uint16(seq_dir / "masks_3" / f"{stem}.png", np.asarray(f.instance_ids_right))
         h, w = ids.shape
         write_yolo_labels(
             seq_dir / "labels" / f"{stem}.txt", np.asarray(f.class_ids, np.int32), np.asarray(f.boxes, np.float64), w, h

@@ -289,7 +289,8 @@ def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector
         grey = seq.left_dir.name in ("image_0", "image_1")
         left_paths = [seq.left_dir / f"{t}.png" for t in stems]
         right_dir = seq.path / {"image_2": "image_3", "image_0": "image_1"}[seq.left_dir.name]
-        if masks_source == "detect" and right_dir.is_dir():
+        # right frames: with their own detections, or with the right camera's ground-truth masks
+        if right_dir.is_dir() and (masks_source == "detect" or (seq.path / "masks_3").is_dir()):
             right_paths = [right_dir / f"{t}.png" for t in stems]
     else:
         grey, left_paths = seq.grey, list(seq.image_paths)
@@ -298,11 +299,11 @@ def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector
 
     if detector is None:
         def masks_of(i: int, k: int) -> tuple[np.ndarray, list[int]]:
-            inst = seq.instance_ids(i)
+            inst = seq.instance_ids(i, right=k == 1)
             ids = sorted(int(x) for x in np.unique(inst[inst > 0]))
             return instance_masks(inst, np.asarray(ids, np.int64), dilation), ids
 
-        for i in range(len(seq)):  # the class of every instance id that occurs
+        for i in range(len(seq)):  # the class of every instance id that occurs (in the left masks/ written)
             ids_i = seq.instance_ids(i)
             for j in np.unique(ids_i[ids_i > 0]).tolist():
                 classes[int(j)] = int(seq.instance_classes.get(int(j), -1))
