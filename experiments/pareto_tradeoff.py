@@ -54,7 +54,9 @@ Command::
 
 Writes ``results/pareto_tradeoff.md``, ``.png`` and ``.json`` (the front, read by notebook 03;
 ``--out``; ``.md`` appended when missing); ``--resume runs.jsonl`` appends one JSON record per finished (world, filter)
-unit and skips the units already there.
+unit and skips the units already there.  The judge is not part of a unit's key: a run with a new
+(or a first) ``--judge`` only re-filters the judged frames of the finished units and appends their
+re-detection, so SLAM can run before the judge is trained.
 
 Runtime (2-core CPU shared with two training jobs, load ≈ 6): the tiny command takes 1.4–1.6 min
 (three runs): ≈ 10 s starting the spawned process, 26 s rendering the 12 stereo frames (mostly
@@ -109,8 +111,9 @@ class Task:
     world: int | str
     frames: int
     """Frames per synthetic world (KITTI: 0, all of ``seq1``)."""
-    filters: tuple[tuple[str, str, str | None, str], ...]
-    """``(name, method, checkpoint or None, resume key)`` in run order."""
+    filters: tuple[tuple[str, str, str | None, str, bool], ...]
+    """``(name, method, checkpoint or None, resume key, judge only)`` in run order; *judge only*: the
+    unit's SLAM runs are done, only its re-detection by the current judge is missing."""
     modes: tuple[str, ...]
     slam_seeds: tuple[int, ...]
     judge: str | None
@@ -123,17 +126,24 @@ def _sha(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
 
 
-def unit_key(world: int | str, frames: int, name: str, checkpoint: str | None, judge: str | None, judge_stride: int,
-             modes: tuple[str, ...], slam_seeds: tuple[int, ...], kitti_edgeconnect: str = "real") -> str:
-    """The resume key of one (world, filter) unit: every setting that changes its numbers."""
+def unit_key(world: int | str, frames: int, name: str, checkpoint: str | None, modes: tuple[str, ...],
+             slam_seeds: tuple[int, ...], kitti_edgeconnect: str = "real") -> str:
+    """The resume key of one (world, filter) unit: every setting that changes its SLAM and image numbers.
+
+    The judge is not in it: a unit's re-detection carries its own :func:`judge_tag`, so that another
+    judge only re-runs the (cheap) re-detection, not the SLAM runs."""
     model = _sha(checkpoint) if checkpoint else "-"
     if world == KITTI:
         model += f"/{kitti_edgeconnect}" if name == "edgeconnect" else ""
-        judge_tag, modes = "yolov8n", ("mono",)
-    else:
-        judge_tag = f"{_sha(judge)}/{judge_stride}" if judge else "nojudge"
-    return (f"{world}|F{frames}|{name}|{model}|judge:{judge_tag}|modes:{','.join(modes)}|"
-            f"seeds:{','.join(map(str, slam_seeds))}")
+        modes = ("mono",)
+    return f"{world}|F{frames}|{name}|{model}|modes:{','.join(modes)}|seeds:{','.join(map(str, slam_seeds))}"
+
+
+def judge_tag(world: int | str, judge: str | None, judge_stride: int) -> str | None:
+    """Which judge measured a unit's re-detection (``None``: no judge); KITTI's is always the YOLOv8n."""
+    if world == KITTI:
+        return "yolov8n"
+    return f"{_sha(judge)}/{judge_stride}" if judge else None
 
 
 # --- one world ----------------------------------------------------------------------------------------
@@ -209,18 +219,29 @@ def world_job(task: Task) -> list[dict]:
     idx = list(range(0, n, task.judge_stride))
     originals = judge.detect([world.rgb8[i] for i in idx]) if judge is not None else None
     records: list[dict] = []
-    for name, method, checkpoint, key in task.filters:
+    tag = judge_tag(task.world, task.judge, task.judge_stride)
+    for name, method, checkpoint, key, judge_only in task.filters:
         r: dict = {"key": key, "world": task.world, "filter": name, "frames": n, "render_s": render_s}
         try:
             inpainter = None
             if method == "edgeconnect":
                 inpainter = Inpainter.load(checkpoint) if checkpoint else Inpainter.embedded("synthetic")
+            if judge_only:  # filter only the judged frames (frame i with seed i, as filter_world does)
+                assert judge is not None and originals is not None
+                judged = [world.rgb8[i] if method == "none" else
+                          filter_world(dataclasses.replace(world, rgb8=world.rgb8[i:i + 1],
+                                                           instance_ids=world.instance_ids[i:i + 1]),
+                                       method, inpainter, seed=i)[0] for i in idx]
+                r = {"key": key, "world": task.world, "filter": name, "judge_only": True,
+                     "redetection": {**_redetection(judge, originals, judged), "judge": tag}}
+                _emit(task, records, r)
+                continue
             t = time.perf_counter()
             left = filter_world(world, method, inpainter)
             r["filter_s"] = 0.0 if method == "none" else time.perf_counter() - t
             right = filter_world(world, method, inpainter, right=True) if "stereo" in task.modes else None
             if judge is not None and originals is not None:
-                r["redetection"] = _redetection(judge, originals, [left[i] for i in idx])
+                r["redetection"] = {**_redetection(judge, originals, [left[i] for i in idx]), "judge": tag}
             q = [(float(psnr(jnp.asarray(left[i]), jnp.asarray(world.background_rgb8[i]), jnp.asarray(hidden[i]))),
                   float(ssim(jnp.asarray(left[i]), jnp.asarray(world.background_rgb8[i]), jnp.asarray(hidden[i]))))
                  for i in range(n) if hidden[i].any()]
@@ -265,7 +286,7 @@ def kitti_job(task: Task) -> list[dict]:
         return boxes_to_masks(boxes, h, w, DILATION), list(range(1, len(boxes) + 1))
 
     records: list[dict] = []
-    for name, method, checkpoint, key in task.filters:
+    for name, method, checkpoint, key, _ in task.filters:
         r: dict = {"key": key, "world": KITTI, "filter": name, "frames": n}
         try:
             inpainter = None
@@ -277,7 +298,8 @@ def kitti_job(task: Task) -> list[dict]:
             else:  # as privslam filter writes a grey sequence: the first channel, 8 bits
                 grey8 = [f.left for f in iter_filtered(images, method, masks_of, inpainter=inpainter, grey=True)]
             r["filter_s"] = 0.0 if method == "none" else time.perf_counter() - t
-            r["redetection"] = _redetection(yolo, originals, [np.repeat(g[..., None], 3, axis=-1) for g in grey8])
+            r["redetection"] = {**_redetection(yolo, originals, [np.repeat(g[..., None], 3, axis=-1) for g in grey8]),
+                                "judge": judge_tag(KITTI, None, 1)}
             frames = [grey_as_read(g) for g in grey8]
             runs = [_slam(frames, seq.camera, "mono", s, seq.timestamps, seq.poses) for s in task.slam_seeds]
             r["mono"] = _slam_fields(runs, task.slam_seeds, n)
@@ -629,6 +651,15 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     return a
 
 
+def merge_record(done: dict[str, dict], r: dict) -> None:
+    """Add a unit's record to ``done`` (by key); a *judge only* record replaces just the re-detection."""
+    if r.get("judge_only"):
+        if r["key"] in done and "error" not in r:
+            done[r["key"]] = {**done[r["key"]], "redetection": r["redetection"]}
+    elif "error" not in r or r["key"] not in done:
+        done[r["key"]] = r
+
+
 def main(argv: list[str] | None = None) -> int:
     from privslam_jax._shared import shared_dir
 
@@ -646,21 +677,28 @@ def main(argv: list[str] | None = None) -> int:
     if a.resume is not None and a.resume.is_file():
         for line in a.resume.read_text().splitlines():
             if line.strip():
-                r = json.loads(line)
-                done[r["key"]] = r
+                merge_record(done, json.loads(line))
         print(f"{len(done)} units read from {a.resume}")
-    keys = {(w, c[0]): unit_key(w, 0 if w == KITTI else a.frames, c[0], c[2], judge, a.judge_stride, a.mode_list,
-                                a.seed_slam, a.kitti_edgeconnect) for w in worlds for c in configs}
+    keys = {(w, c[0]): unit_key(w, 0 if w == KITTI else a.frames, c[0], c[2], a.mode_list, a.seed_slam,
+                                a.kitti_edgeconnect) for w in worlds for c in configs}
+
+    def judged(w: int | str, key: str) -> bool:  # the unit's re-detection is the current judge's (or no judge)
+        tag = judge_tag(w, judge, a.judge_stride)
+        return tag is None or (done[key].get("redetection") or {}).get("judge") == tag
+
     tasks = []
     for w in worlds:
-        todo = tuple((n, m, p, keys[(w, n)]) for n, m, p in configs if keys[(w, n)] not in done)
+        todo = tuple((n, m, p, keys[(w, n)], keys[(w, n)] in done) for n, m, p in configs
+                     if keys[(w, n)] not in done or not judged(w, keys[(w, n)]))
         if todo:
             tasks.append(Task(w, 0 if w == KITTI else a.frames, todo, a.mode_list, a.seed_slam, judge,
                               a.judge_stride, None if a.resume is None else str(a.resume), a.kitti_edgeconnect))
     t0 = time.perf_counter()
-    fresh = {r["key"]: r for r in run_tasks(tasks, a.jobs)}
-    records = [fresh.get(keys[(w, c[0])]) or done[keys[(w, c[0])]] for w in worlds for c in configs
-               if keys[(w, c[0])] in fresh or keys[(w, c[0])] in done]
+    for r in run_tasks(tasks, a.jobs):
+        merge_record(done, r)
+    records = [done[keys[(w, c[0])]] for w in worlds for c in configs if keys[(w, c[0])] in done]
+    if judge is None:  # no judge now: re-detection counts of an earlier judge are not shown
+        records = [r if r["world"] == KITTI else {k: v for k, v in r.items() if k != "redetection"} for r in records]
     result = analyse(records, a.mode_list, a.seed_slam)
     out = a.out if a.out.is_absolute() else Path.cwd() / a.out
     command = " ".join(["python experiments/pareto_tradeoff.py", *(argv if argv is not None else sys.argv[1:])])

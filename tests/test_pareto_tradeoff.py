@@ -290,9 +290,29 @@ def test_experiment_end_to_end_and_resume(monkeypatch, tmp_path):
     argv = ["--seeds", "400001", "--frames", "10", "--filters", "black", "--slam-seeds", "0", "--modes", "mono,stereo",
             "--no-kitti", "--judge", str(EMBEDDED_WEIGHTS), "--judge-stride", "3", "--resume", str(runs),
             "--out", str(out)]
-    assert exp.main(argv) == 0
-    recs = {r["filter"]: r for r in map(json.loads, runs.read_text().splitlines())}
+    no_judge = [x for i, x in enumerate(argv) if x != "--judge" and argv[i - 1] != "--judge"]
+    assert exp.main(no_judge) == 0  # SLAM and image measures; no re-detection
+    assert "redetection" not in runs.read_text() and "no judge" in out.read_text()
+    assert exp.main(argv) == 0  # the judge afterwards: only the re-detection runs (filtering the judged frames)
+    lines = [json.loads(x) for x in runs.read_text().splitlines()]
+    assert [x.get("judge_only", False) for x in lines] == [False, False, True, True]
+    recs: dict = {}
+    for r in lines:
+        exp.merge_record(recs, r)
+    recs = {r["filter"]: r for r in recs.values()}
     assert list(recs) == ["none", "black"]
+    # the re-detection recomputed from the whole filtered sequence, as a run with the judge from the start has it
+    from privslam_jax.data.synthetic import SynthConfig
+    from privslam_jax.metrics.redetection import refound
+    from privslam_jax.tradeoff.proxy import filter_world, render_world
+
+    world = render_world(SynthConfig(seed=400001, num_frames=10, stereo=True))
+    judge, idx = exp._judge(EMBEDDED_WEIGHTS), [0, 3, 6, 9]
+    originals = judge.detect([world.rgb8[i] for i in idx])
+    black = filter_world(world, "black")
+    found = sum(refound(o, f) for o, f in zip(originals, judge.detect([black[i] for i in idx]), strict=True))
+    assert recs["black"]["redetection"]["refound"] == found
+    assert recs["black"]["redetection"]["objects"] == sum(len(o) for o in originals)
     text = out.read_text()
     assert out.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     n, b = recs["none"], recs["black"]
@@ -324,10 +344,12 @@ def test_experiment_end_to_end_and_resume(monkeypatch, tmp_path):
     monkeypatch.setattr(exp, "run_tasks", lambda tasks, jobs: calls.append(tasks) or [])
     assert exp.main(argv) == 0
     assert calls == [[]] and tables(out.read_text()) == tables(text)
-    assert len(runs.read_text().splitlines()) == 2
+    assert len(runs.read_text().splitlines()) == 4
     # one unit missing: exactly that one is run
-    runs.write_text(runs.read_text().splitlines()[0] + "\n")
+    kept = runs.read_text().splitlines()
+    runs.write_text(kept[0] + "\n" + kept[2] + "\n")  # none's unit and its re-detection; black's gone
     calls.clear()
     assert exp.main(argv) == 0
     (task,) = calls[0]
     assert task.world == 400001 and [f[0] for f in task.filters] == ["black"] and task.filters[0][3] == b["key"]
+    assert task.filters[0][4] is False  # the whole unit, not only its re-detection
