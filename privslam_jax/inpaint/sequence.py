@@ -348,30 +348,18 @@ def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector
     return _Plan(seq, left_paths, right_paths, grey, masks_of, classes, inpainter, report)
 
 
-def filter_sequence_in_memory(
-    sequence: Path,
-    method: str,
-    masks_source: str | None = None,
-    detector_path: Path | None = None,
-    model_path: Path | None = None,
-    dilation: int = 4,
-    seed: int = 0,
-    progress: bool = True,
-    conf: float | None = None,
-    propagate: int = 0,
-    tta: bool = False,
-    allow_domain_mismatch: bool = False,
-    out: Path | None = None,
-    overwrite: bool = False,
-) -> tuple[FilteredFrames, dict, Path | None]:
+def filter_sequence_in_memory(sequence: Path, method: str, *, out: Path | None = None, **settings: Any
+                              ) -> tuple[FilteredFrames, dict, Path | None]:
     """:func:`filter_sequence` with the result in memory: ``(filtered frames, filter report, folder)``.
 
-    The same frames, masks and report as the files :func:`filter_sequence` writes (the input is
-    read from ``sequence``).  ``out``: also write them there in the same pass, as
-    :func:`filter_sequence` does (the written folder is returned; ``None``: nothing is written).
+    ``settings``: the keyword arguments of :func:`filter_sequence` (``masks_source``, ``detector_path``,
+    ``model_path``, ``dilation``, ``seed``, ``progress``, ``conf``, ``propagate``, ``tta``,
+    ``allow_domain_mismatch``, ``overwrite``).  The same frames, masks and report as the files
+    :func:`filter_sequence` writes (the input is read from ``sequence``).  ``out``: also write them
+    there in the same pass (the written folder is returned; ``None``: nothing is written).
     """
-    frames, report, folder = _run_filter(Path(sequence), out, method, masks_source, detector_path, model_path, dilation,
-                                         seed, progress, conf, propagate, tta, allow_domain_mismatch, overwrite, True)
+    frames, report, folder = _run_filter(Path(sequence), None if out is None else Path(out), method, keep=True,
+                                         **settings)
     assert frames is not None
     return frames, report, folder
 
@@ -408,15 +396,18 @@ def filter_sequence(
     Frames are filtered and written one at a time (:func:`iter_filtered`), never all held in memory;
     :func:`filter_sequence_in_memory` keeps them.
     """
-    _, _, folder = _run_filter(Path(sequence), Path(out), method, masks_source, detector_path, model_path, dilation,
-                               seed, progress, conf, propagate, tta, allow_domain_mismatch, overwrite, False)
+    _, _, folder = _run_filter(Path(sequence), Path(out), method, masks_source=masks_source, detector_path=detector_path,
+                               model_path=model_path, dilation=dilation, seed=seed, progress=progress, conf=conf,
+                               propagate=propagate, tta=tta, allow_domain_mismatch=allow_domain_mismatch,
+                               overwrite=overwrite, keep=False)
     assert folder is not None
     return folder
 
 
-def _run_filter(sequence: Path, out: Path | None, method: str, masks_source: str | None, detector_path: Path | None,
-                model_path: Path | None, dilation: int, seed: int, progress: bool, conf: float | None, propagate: int,
-                tta: bool, allow_domain_mismatch: bool, overwrite: bool, keep: bool
+def _run_filter(sequence: Path, out: Path | None, method: str, *, masks_source: str | None = None,
+                detector_path: Path | None = None, model_path: Path | None = None, dilation: int = 4, seed: int = 0,
+                progress: bool = True, conf: float | None = None, propagate: int = 0, tta: bool = False,
+                allow_domain_mismatch: bool = False, overwrite: bool = False, keep: bool = False
                 ) -> tuple[FilteredFrames | None, dict, Path | None]:
     kitti = any((sequence / d).is_dir() for d in ("image_2", "image_0"))
     out_dir = manifest = None
