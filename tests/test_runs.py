@@ -103,3 +103,18 @@ def test_a_poses_file_no_run_owns_is_refused_and_a_failed_filter_stays_incomplet
     assert main(["filter", str(seq), "--out", str(tmp_path / "f"), "--method", "gray", "--masks", "gt"]) == 2
     assert "000001.png" in capsys.readouterr().err
     assert read_manifest(tmp_path / "f" / "sequences" / "synth")["complete"] is False
+
+
+def test_a_frame_of_another_size_is_refused_by_name(tmp_path, capsys):
+    import cv2
+    import numpy as np
+
+    root = tmp_path / "k"
+    assert main(["synth", "--out", str(root), "--frames", "3", "--width", "64", "--height", "32", "--quiet"]) == 0
+    seq = root / "sequences" / "synth"
+    cv2.imwrite(str(seq / "image_2" / "000002.png"), np.zeros((20, 64, 3), np.uint8))
+    for masks in ("gt", "detect"):
+        capsys.readouterr()
+        assert main(["filter", str(seq), "--out", str(tmp_path / masks), "--method", "gray", "--masks", masks]) == 2
+        err = capsys.readouterr().err
+        assert "000002.png is 64x20, the sequence's frames are 64x32" in err, err

@@ -128,7 +128,7 @@ class FilteredFrames:
     left: np.ndarray
     """``(N, H, W, 3)`` uint8 RGB, or ``(N, H, W)`` uint8 grey: the frames ``image_2/`` (``image_0/``) gets."""
     right: np.ndarray | None
-    """The right frames, filtered with their own detections (``None``: not filtered)."""
+    """The right frames, filtered with their own masks (``None``: not filtered)."""
     label_maps: np.ndarray
     """``(N, H, W)`` uint16 mask ids of the left frames (``masks/``; 0: not hidden)."""
     instance_classes: dict[int, int]
@@ -143,7 +143,8 @@ class FilteredFrames:
 
         frames = self.right if right else self.left
         if frames is None:
-            raise ValueError("the right frames were not filtered (only detected masks filter them)")
+            raise ValueError("the right frames were not filtered (they need detected masks or the right camera's "
+                             "ground-truth masks, masks_3/)")
         return grey_as_read(frames[i])
 
 
@@ -180,9 +181,10 @@ def iter_filtered(
         out: list[np.ndarray] = []
         label_map = None
         for k, frames in enumerate(sides):
-            image = as_unit_image(frames[i], f"frame {i}")
+            where = frames.paths[i] if isinstance(frames, _Images) else f"frame {i}"
+            image = as_unit_image(frames[i], str(where))
             if shape is not None and image.shape[:2] != shape:
-                raise ValueError(f"frame {i} is {image.shape[1]}x{image.shape[0]}, the sequence's frames are "
+                raise ValueError(f"{where} is {image.shape[1]}x{image.shape[0]}, the sequence's frames are "
                                  f"{shape[1]}x{shape[0]}")
             masks, ids = masks_of(i, k)
             out.append(_to_u8(filter_frame(image, masks, method, inpainter=inpainter, seed=seed + i), grey))
