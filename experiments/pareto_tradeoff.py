@@ -675,9 +675,18 @@ def main(argv: list[str] | None = None) -> int:
         print("no ../shared (KITTI seq1 and yolov8n.pt): KITTI skipped", file=sys.stderr)
     done: dict[str, dict] = {}
     if a.resume is not None and a.resume.is_file():
-        for line in a.resume.read_text().splitlines():
-            if line.strip():
+        lines = a.resume.read_text().splitlines(keepends=True)
+        for k, line in enumerate(lines):
+            if not line.strip():
+                continue
+            try:
                 merge_record(done, json.loads(line))
+            except (json.JSONDecodeError, KeyError, TypeError) as err:
+                if k == len(lines) - 1 and not line.endswith("\n"):  # a unit cut short by a kill: run it again
+                    print(f"{a.resume}: ignoring the unfinished last line", file=sys.stderr)
+                    continue
+                print(f"error: --resume {a.resume}: line {k + 1} is not a unit record ({err})", file=sys.stderr)
+                return 2
         print(f"{len(done)} units read from {a.resume}")
     keys = {(w, c[0]): unit_key(w, 0 if w == KITTI else a.frames, c[0], c[2], a.mode_list, a.seed_slam,
                                 a.kitti_edgeconnect) for w in worlds for c in configs}

@@ -353,3 +353,9 @@ def test_experiment_end_to_end_and_resume(monkeypatch, tmp_path):
     (task,) = calls[0]
     assert task.world == 400001 and [f[0] for f in task.filters] == ["black"] and task.filters[0][3] == b["key"]
     assert task.filters[0][4] is False  # the whole unit, not only its re-detection
+    # a line cut short by a kill is run again; a damaged line in the middle is refused with exit 2
+    runs.write_text(kept[0] + "\n" + kept[2] + "\n" + kept[1][:40])
+    calls.clear()
+    assert exp.main(argv) == 0 and [f[0] for f in calls[0][0].filters] == ["black"]
+    runs.write_text(kept[0][:40] + "\n" + kept[2] + "\n")
+    assert exp.main(argv) == 2
