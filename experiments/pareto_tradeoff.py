@@ -314,12 +314,11 @@ def kitti_job(task: Task) -> list[dict]:
 
 def run_tasks(tasks: list[Task], jobs: int) -> list[dict]:
     """Every world in a fresh (spawned) process, ``jobs`` at a time (``proxy_vs_slam.run_tasks``)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from privslam_jax.pool import process_pool
 
     if not tasks:
         return []
-    with ProcessPoolExecutor(max(jobs, 1), mp_context=mp.get_context("spawn"), max_tasks_per_child=1) as ex:
+    with process_pool(jobs, max_tasks_per_child=1) as ex:
         return [r for rs in ex.map(world_job, tasks) for r in rs]
 
 
@@ -354,8 +353,9 @@ def analyse(records: list[dict], modes: tuple[str, ...], slam_seeds: tuple[int, 
             rows[f] = {"redetection": red.get(f), "psnr": psnr.get(f, math.nan), "ssim": ssim.get(f, math.nan),
                        "ms": ms.get(f, math.nan), "worlds": len({r["world"] for r in rs if r["filter"] == f}),
                        **{m: ate[m].get(f) for m in dmodes}}
+        # the goal's axes: re-detection and the monocular ATE change (unknown without --modes mono)
         points = {f: ((rows[f]["redetection"] or {}).get("pct", math.nan),
-                      (rows[f]["mono"] or {}).get("d_ate_pct", math.nan)) for f in names if f != "none"}
+                      (rows[f].get("mono") or {}).get("d_ate_pct", math.nan)) for f in names if f != "none"}
         noise = {m: noise_floor(rs, m, (slam_seeds[0], slam_seeds[1])) if len(slam_seeds) > 1 else [] for m in dmodes}
         out[domain] = {"rows": rows, "points": points, "front": pareto_front(points), "noise": noise,
                        "none_ate": none_ate, "modes": dmodes, "worlds": sorted({r["world"] for r in rs}, key=str)}

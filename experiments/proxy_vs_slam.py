@@ -186,10 +186,9 @@ def run_tasks(tasks: list[Task], jobs: int) -> list[dict]:
     Fresh, because a monocular SLAM run depends on what ran before it in the same process (measured:
     world 300002, 40 frames, unfiltered: Sim(3) ATE 0.091 m in a fresh process, 0.114 m after the runs
     of world 300001); with one process per world the numbers do not depend on ``--jobs``."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from privslam_jax.pool import process_pool
 
-    with ProcessPoolExecutor(max(jobs, 1), mp_context=mp.get_context("spawn"), max_tasks_per_child=1) as ex:
+    with process_pool(jobs, max_tasks_per_child=1) as ex:
         return [r for rs in ex.map(world_job, tasks) for r in rs]
 
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import json
-import multiprocessing as mp
 import sys
 import time
 import traceback
@@ -216,6 +215,7 @@ def main() -> None:
     a = p.parse_args()
     from privslam_jax.data.faults import FAULT_KINDS
     from privslam_jax.data.files import write_atomic
+    from privslam_jax.pool import process_pool
 
     if a.jobs < 1 or a.synth_frames < a.start + 3 or a.start < 1:
         raise SystemExit("need --jobs >= 1, --start >= 1 and --synth-frames >= --start + 3")
@@ -234,7 +234,7 @@ def main() -> None:
     print(f"{len(cases)} runs, {len(cases) - len(todo)} already in {a.log}", flush=True)
     a.log.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
-    with open(a.log, "a") as log, cf.ProcessPoolExecutor(a.jobs, mp_context=mp.get_context("spawn")) as pool:
+    with open(a.log, "a") as log, process_pool(a.jobs) as pool:
         futures = {pool.submit(run_case, *c): c for c in todo}
         for k, fut in enumerate(cf.as_completed(futures), 1):
             row = dict(fut.result(), key=_key(futures[fut]))

@@ -278,10 +278,11 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
         for i in todo:
             results[i] = tag(tasks[i], _seq_job(*_job_args(tasks[i])))
     else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures import as_completed
 
-        with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
+        from privslam_jax.pool import process_pool
+
+        with process_pool(jobs) as ex:
             futs = {ex.submit(_seq_job, *_job_args(tasks[i])): i for i in todo}
             for f in as_completed(futs):
                 results[futs[f]] = tag(tasks[futs[f]], f.result())

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
-import multiprocessing as mp
 import sys
 import tempfile
 import time
@@ -89,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     from privslam_jax.data.kitti_write import write_kitti_sequence
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
     from privslam_jax.inpaint.sequence import filter_sequence
+    from privslam_jax.pool import process_pool
 
     filters = [f for f in a.filters.split(",") if f]
     work = a.work or Path(tempfile.mkdtemp(prefix="table5_"))
@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         write_kitti_sequence(syn, work / "synth", "synth", progress=False, overwrite=True), None)
 
     jobs: dict[tuple[str, str, int], cf.Future] = {}
-    with cf.ProcessPoolExecutor(a.jobs, mp_context=mp.get_context("spawn")) as pool:  # JAX does not survive fork
+    with process_pool(a.jobs) as pool:
         for name, (seq, det) in sequences.items():
             paths = {"original": seq}
             for method in filters:

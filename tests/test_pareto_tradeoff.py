@@ -240,6 +240,12 @@ def test_report_goal_section_on_hand_made_records(monkeypatch, tmp_path):
         assert f"dominates every fixed filter: {why}" in line and line.endswith(f"**{'met' if met else 'not met'}**.")
         assert f"| telea | 10.0 (40) | {telea_pct:+.1f} [{telea_pct:+.1f}, {telea_pct:+.1f}] (n = 4) |" in text
         assert "* mono: `none` with RANSAC seed 1 against seed 0: +100.0 % [+100.0, +100.0]" in text
+    # stereo only (--modes stereo): the goal's monocular axis is unknown, so the goal is not met
+    stereo = [{**{k: v for k, v in x.items() if k != "mono"}, "stereo": x["mono"]} for x in recs(10.0)]
+    text = exp.write_markdown(stereo, exp.analyse(stereo, ("stereo",), (0, 1)),
+                              argparse.Namespace(**{**vars(args), "mode_list": ("stereo",)}), "cmd", tmp_path / "s.md", 1.0)
+    line = next(ln for ln in text.splitlines() if ln.startswith("* **tr**"))
+    assert "ΔATE n/a % ≤ +5 %: no" in line and line.endswith("**not met**.")
 
 
 # --- the right camera's instance ids ----------------------------------------------------------------------
