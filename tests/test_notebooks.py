@@ -53,6 +53,33 @@ EXPECTED = {
         # the filters on one frame, the loss curve (+ the front when the results file exists)
         "figures": 3 if PARETO_JSON.is_file() else 2,
     },
+    # 400 points back-projected from 2 frames of 160x48 (depth < 40 m), random_lift with fixed_key(0):
+    # Line2Point's k = int(0.05 * 400) = 20; the gradient attack (rtol = atol = 1e-4) converges, and
+    # both attacks recover the median point to within 5 m (the no-attack baseline: ~8 m).
+    "04_attacks_with_gradient_solvers": {
+        "stdout": [
+            r"^tiny run: 400 points from 2 frames of 160x48$",
+            r"^\d+ valid depth pixels \(< 40 m\); map of 400 points, median distance to the first camera \d+\.\d m$",
+            r"^random lift: 400 lines, ",
+            r"^Line2Point: k = 20 coarse neighbours per line, 2 refinement rounds; gradient attack: 16 neighbours",
+            (r"^used +GradientAttackResult\(points=\(400, 3\), offsets=\(400,\), result=successful, "
+             r"num_steps=\d+\) successful=True$"),
+            (r"^max_steps=20 GradientAttackResult\(points=\(400, 3\), offsets=\(400,\), "
+             r"result=nonlinear_max_steps_reached, num_steps=20\) successful=False$"),
+            r"^message of the cut-off solve: 'The maximum number of steps was reached",
+            r"^with throw=True: RuntimeError\('gradient attack: the solve did not succeed after 20 ",
+            r"^method +median \(m\) +within 0\.5 m \(%\)$",
+            r"^no attack +\d+\.\d{3} +\d+\.\d$",
+            r"^Line2Point +[0-4]\.\d{3} +\d+\.\d$",
+            r"^gradient +[0-4]\.\d{3} +\d+\.\d$",
+            r"^Line2Point \(paired\) +\d+\.\d{3} +\d+\.\d$",
+            r"^gradient \(paired\) +\d+\.\d{3} +\d+\.\d$",
+            (r"^d\(mean squared error\)/d\(moments\): shape \(400, 3\), finite True, solve successful True; "
+             r"10% of the lines carry \d+% of the gradient norm$"),
+        ],
+        # the sampled pixels, the error histograms, the 3D view of original vs recovered points
+        "figures": 3,
+    },
 }
 
 
