@@ -21,6 +21,7 @@ NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.p
 STRICT_CELL = 'import warnings\nwarnings.filterwarnings("error", module=r"privslam_jax(\\..*)?$")'
 PARETO_JSON = Path(__file__).resolve().parents[1] / "results" / "pareto_tradeoff.json"
 HAS_KITTI = shared_dir() is not None and (shared_dir() / "data/kitti_odometry/sequences/seq1").is_dir()
+HAS_KITTI_RAW = shared_dir() is not None and (shared_dir() / "data/real/kitti_raw_a/frames/0000000220.png").is_file()
 
 EXPECTED = {
     # SynthConfig(width=160, height=48, num_frames=3, stereo=True): fx = 0.58 · 160 = 92.8 px; the
@@ -38,6 +39,32 @@ EXPECTED = {
         ],
         # frames + boxes grid, stereo pair, camera path (+ the real KITTI frame and path)
         "figures": 4 if HAS_KITTI else 3,
+    },
+    # TrainConfig(width=4, num_residual_blocks=1, size=32, batch_size=4) trained edge:20 + edge_inpaint:40
+    # on the crops of 3 frames of world 0 (640x192); the embedded checkpoints and Telea on frame 1 of
+    # world 902 (PSNR inside the dilated instance masks against the object-free render); then
+    # kitti_raw_a frame 220 (colour, 1242x375; KITTI seq1 frame 0 when only that is present) with the
+    # embedded real-frame detector's boxes.
+    "02_train_inpainter_cpu": {
+        "stdout": [
+            r"^tiny run: 32x32 crops, width 4, 1 residual block\(s\), batch 4, stages edge:20, edge_inpaint:40$",
+            r"^\d+ object crops of 32x32 from 3 frames of world 0 \(640x192\)$",
+            r"^hole share of the first batch: \d+\.\d% of the crop pixels$",
+            r"^trained 60 steps in \d+ s: G1 e_g \d+\.\d{3} -> \d+\.\d{3}, G2 i_l1 \d\.\d{3} -> \d\.\d{3}$",
+            r"^[1-4] held-out crops, mean \|error\| inside the hole: before 0\.\d{3}, after 0\.\d{3}$",
+            r"^world 902, frame 1: \d+ objects, \d+\.\d% of the pixels hidden$",
+            r"^method +PSNR in the hole \(dB\)$",
+            r"^telea +\d+\.\d\d$",
+            r"^edgeconnect \(just trained\) +\d+\.\d\d$",
+            r"^edgeconnect \(synthetic\) +\d+\.\d\d$",
+            r"^edgeconnect \(real\) +\d+\.\d\d$",
+            r"^real frame (?:kitti_raw_a/frames/0000000220\.png: 1242x375|seq1/image_0/000000\.png: 1226x370), "
+            r"(?:\d+ detections \(.+\)|no detection: a fixed box on the road)$"
+            if HAS_KITTI_RAW or HAS_KITTI else r"^\.\./shared is absent: skipping the real KITTI frame$",
+        ],
+        # the crop batch, the loss curves, crops before/after, the synthetic frame's fills
+        # (+ the real frame: original / mask / Telea / EdgeConnect-real)
+        "figures": 5 if HAS_KITTI_RAW or HAS_KITTI else 4,
     },
     # TradeoffConfig at 320x96 with steps=2 and 8-frame worlds; the privacy loss of a frame whose
     # objects are all hidden sits at its floor tau*log(A*C) = 0.0962 (docs/tradeoff.md).
