@@ -56,7 +56,9 @@ Writes ``results/pareto_tradeoff.md``, ``.png`` and ``.json`` (the front, read b
 ``--out``; ``.md`` appended when missing); ``--resume runs.jsonl`` appends one JSON record per finished (world, filter)
 unit and skips the units already there.  The judge is not part of a unit's key: a run with a new
 (or a first) ``--judge`` only re-filters the judged frames of the finished units and appends their
-re-detection, so SLAM can run before the judge is trained.
+re-detection, so SLAM can run before the judge is trained.  ``--report-only`` runs nothing and
+writes the report of the units in ``--resume`` so far, leaving out every world with a missing unit
+(a partial front).
 
 Runtime (2-core CPU shared with two training jobs, load ≈ 6): the tiny command takes 1.4–1.6 min
 (three runs): ≈ 10 s starting the spawned process, 26 s rendering the 12 stereo frames (mostly
@@ -447,6 +449,12 @@ def write_markdown(records: list[dict], result: dict, args: argparse.Namespace, 
         "# Pareto front: re-detection vs SLAM ATE change (issue 18, item 4)", "",
         (f"Written by `{command}` (protocol in the script's docstring), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
          f"wall time {wall_s / 60:.1f} min (this invocation; units read from `--resume` not included)."), "",
+        *([f"**Partial front** (`--report-only`): {len(args.missing)} of {args.units} (world, filter) units are not "
+           "in `--resume` yet (" + ", ".join(f"{w}/{f}" for w, f in args.missing) + "); every unit of "
+           + ("world " if len({w for w, _ in args.missing}) == 1 else "worlds ")
+           + ", ".join(map(str, dict.fromkeys(w for w, _ in args.missing)))
+           + " is left out of every number below, so that every filter is measured on the same worlds.", ""]
+          if getattr(args, "missing", None) else []),
         "## Settings", "",
         (f"* synthetic worlds: `SynthConfig(seed=s, num_frames={args.frames}, stereo=True)`, 640×192, "
          f"s = {', '.join(map(str, args.seed_list))}; 8-bit frames as `privslam synth` writes them"),
@@ -478,6 +486,8 @@ def write_markdown(records: list[dict], result: dict, args: argparse.Namespace, 
     if kit is not None:
         lines += ["## KITTI seq1 (51 real grey frames, monocular)", "", *table_rows(kit, True), "",
                   f"Pareto front: {', '.join(kit['front']) or 'n/a'}.", ""]
+    elif any(w == KITTI for w, _ in getattr(args, "missing", [])):
+        lines += ["## KITTI seq1", "", "not run yet (partial front).", ""]
     elif not args.no_kitti:
         lines += ["## KITTI seq1", "", "skipped: `../shared` (KITTI frames and yolov8n.pt) is absent.", ""]
     lines += ["## Goal", "",
@@ -616,7 +626,11 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="markdown (.md appended when missing); the .png beside it")
     p.add_argument("--resume", type=Path, default=None,
                    help="JSON-lines file: finished (world, filter) units are appended, units already there are skipped")
+    p.add_argument("--report-only", action="store_true",
+                   help="run nothing: report the --resume units of the complete worlds, naming the missing units")
     a = p.parse_args(argv)
+    if a.report_only and (a.resume is None or not a.resume.is_file()):
+        p.error("--report-only needs an existing --resume file")
     a.filter_list = tuple(f for f in a.filters.split(",") if f and f != "none")
     if unknown := set(a.filter_list) - set(FILTER_METHODS):
         p.error(f"--filters: unknown filter(s) {sorted(unknown)}; choose from {', '.join(FILTER_METHODS)}")
@@ -695,8 +709,12 @@ def main(argv: list[str] | None = None) -> int:
         tag = judge_tag(w, judge, a.judge_stride)
         return tag is None or (done[key].get("redetection") or {}).get("judge") == tag
 
+    a.units = len(keys)
+    a.missing = [(w, c[0]) for w in worlds for c in configs
+                 if keys[(w, c[0])] not in done or not judged(w, keys[(w, c[0])])] if a.report_only else []
+    incomplete = {w for w, _ in a.missing}  # a partial world is left out whole: every filter on the same worlds
     tasks = []
-    for w in worlds:
+    for w in worlds if not a.report_only else ():
         todo = tuple((n, m, p, keys[(w, n)], keys[(w, n)] in done) for n, m, p in configs
                      if keys[(w, n)] not in done or not judged(w, keys[(w, n)]))
         if todo:
@@ -705,7 +723,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for r in run_tasks(tasks, a.jobs):
         merge_record(done, r)
-    records = [done[keys[(w, c[0])]] for w in worlds for c in configs if keys[(w, c[0])] in done]
+    records = [done[keys[(w, c[0])]] for w in worlds for c in configs
+               if keys[(w, c[0])] in done and w not in incomplete]
     if judge is None:  # no judge now: re-detection counts of an earlier judge are not shown
         records = [r if r["world"] == KITTI else {k: v for k, v in r.items() if k != "redetection"} for r in records]
     result = analyse(records, a.mode_list, a.seed_slam)

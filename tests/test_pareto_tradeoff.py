@@ -359,6 +359,16 @@ def test_experiment_end_to_end_and_resume(monkeypatch, tmp_path):
     (task,) = calls[0]
     assert task.world == 400001 and [f[0] for f in task.filters] == ["black"] and task.filters[0][3] == b["key"]
     assert task.filters[0][4] is False  # the whole unit, not only its re-detection
+    # --report-only: nothing runs; the report names the missing unit and leaves it out
+    calls.clear()
+    assert exp.main(argv + ["--report-only"]) == 0
+    assert calls == [] or calls == [[]]
+    partial = out.read_text()
+    assert "**Partial front** (`--report-only`): 1 of 2 (world, filter) units are not in `--resume` yet" in partial
+    assert "(400001/black); every unit of world 400001 is left out" in partial  # none's too: the same worlds for all
+    assert "| black |" not in partial and "| none |" not in partial
+    with pytest.raises(SystemExit):
+        exp.main(argv[:-4] + ["--report-only"])  # without --resume
     # a line cut short by a kill is run again; a damaged line in the middle is refused with exit 2
     runs.write_text(kept[0] + "\n" + kept[2] + "\n" + kept[1][:40])
     calls.clear()
