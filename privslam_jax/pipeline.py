@@ -81,7 +81,7 @@ class PipelineConfig:
     filter_method: str = "edgeconnect"
     """Privacy filter (any ``privslam filter --method``)."""
     inpainter: str | None = None
-    """EdgeConnect checkpoint for ``filter_method="edgeconnect"`` (``None``: the embedded one)."""
+    """EdgeConnect checkpoint for ``filter_method="edgeconnect"`` or ``"tradeoff"`` (``None``: the embedded one)."""
     masks: str = "detect"
     """Where the filter's masks come from: ``"detect"`` (a detector) or ``"gt"`` (the renderer's)."""
     detector: str | None = None

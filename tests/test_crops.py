@@ -121,6 +121,15 @@ def test_edgeconnect_without_model_uses_the_embedded_checkpoint():
     np.testing.assert_array_equal(out, filter_frame(img, a[None], "edgeconnect", inpainter=default))
     assert not np.allclose(out[a], filter_frame(img, a[None], "edgeconnect", inpainter=Inpainter.embedded("real"))[a],
                            atol=1e-3)
+    # method "tradeoff": the same network with the trade-off checkpoint (also ≤ 10 MB), another fill
+    from privslam_jax.inpaint.filter import EMBEDDED_TRADEOFF_INPAINTER
+
+    tradeoff = Inpainter.embedded("tradeoff")
+    assert tradeoff.config == default.config and EMBEDDED_TRADEOFF_INPAINTER.stat().st_size <= 10 * 2**20
+    out_t = filter_frame(img, a[None], "tradeoff")
+    np.testing.assert_array_equal(out_t, filter_frame(img, a[None], "edgeconnect", inpainter=tradeoff))
+    np.testing.assert_array_equal(out_t[~a], img[~a])
+    assert not np.allclose(out[a], out_t[a], atol=1e-3)
     data = np.load(Path(__file__).parent / "data" / "synth_frame_320x96.npz")
     frame, background, masks = data["image"], data["background"], data["masks"]
     hidden = masks.any(0)

@@ -199,7 +199,8 @@ def test_write_failure_is_an_error_not_a_shorter_sequence(tmp_path, capsys, monk
 
 def test_filter_picks_the_embedded_inpainter_for_the_frames(tmp_path):
     """EdgeConnect without --model: the real-frame checkpoint (Telea prefill, residual) on real frames,
-    the synthetic-world one on a privslam synth output; filter_report.json names it."""
+    the synthetic-world one on a privslam synth output; ``--method tradeoff``: the trade-off checkpoint.
+    filter_report.json names it."""
     for synthetic, name in ((False, "real"), (True, "synthetic")):
         seq = _real_like_sequence(tmp_path / name, synthetic=synthetic)
         out = tmp_path / f"o_{name}"
@@ -209,3 +210,10 @@ def test_filter_picks_the_embedded_inpainter_for_the_frames(tmp_path):
         inp = json.loads((out / "sequences" / "s" / "filter_report.json").read_text())["inpainter"]
         assert inp["weights"] == f"embedded ({name})"
         assert (inp["config"]["prefill"], inp["config"]["residual"]) == (("white", False) if synthetic else ("telea", True))
+    # --method tradeoff: the trade-off checkpoint on either kind of frames
+    seq = _real_like_sequence(tmp_path / "t", synthetic=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        assert main(["filter", str(seq), "--masks", "detect", "--method", "tradeoff", "--out", str(tmp_path / "o_t")]) == 0
+    inp = json.loads((tmp_path / "o_t" / "sequences" / "s" / "filter_report.json").read_text())["inpainter"]
+    assert inp["weights"] == "embedded (tradeoff)"

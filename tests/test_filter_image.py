@@ -35,6 +35,7 @@ from privslam_jax.inpaint.differentiable import (
 from privslam_jax.inpaint.filter import (
     EMBEDDED_INPAINTER,
     EMBEDDED_REAL_INPAINTER,
+    EMBEDDED_TRADEOFF_INPAINTER,
     Inpainter,
     InpainterConfig,
     filter_frame,
@@ -76,10 +77,11 @@ def test_resize_matrices_equal_opencv():
         np.testing.assert_allclose(got, _resize(x, wo, ho), atol=1e-6, err_msg=str((hi, wi, ho, wo)))
 
 
-@pytest.fixture(scope="module", params=["synthetic", "real"])
+@pytest.fixture(scope="module", params=["synthetic", "real", "tradeoff"])
 def embedded(request):
     """``(inpainter, params, jitted filter_image on the synthetic frame's masks)`` for one shipped checkpoint."""
-    path = {"synthetic": EMBEDDED_INPAINTER, "real": EMBEDDED_REAL_INPAINTER}[request.param]
+    path = {"synthetic": EMBEDDED_INPAINTER, "real": EMBEDDED_REAL_INPAINTER,
+            "tradeoff": EMBEDDED_TRADEOFF_INPAINTER}[request.param]
     if not path.is_file():
         pytest.skip(f"{path.name} is not shipped in this checkout")
     inp = Inpainter.embedded(request.param)

@@ -26,8 +26,10 @@ is not a ``privslam synth`` output (one without ``background/``) unless
 ``--allow-domain-mismatch`` is given, and then the run warns. ``filter_report.json`` records the
 detector, its domain and the masks per frame.
 ``--method edgeconnect`` uses ``--model`` (an ``Inpainter`` ``.npz`` from ``train/inpaint.py``) or,
-without it, the embedded CPU-preset checkpoint (``privslam_jax/assets/inpainter_cpu16.npz``, see
-``docs/model_card_inpainter.md``).
+without it, the embedded CPU-preset checkpoint made for the frames (``privslam_jax/assets/inpainter_cpu16.npz``
+on ``privslam synth`` output, ``inpainter_cpu16_real.npz`` elsewhere; ``docs/model_card_inpainter.md``).
+``--method tradeoff`` is the same network with the embedded checkpoint trained for privacy and SLAM
+accuracy at once (``inpainter_tradeoff.npz``, ``docs/model_card_inpainter_tradeoff.md``).
 
 The written sequence folder carries ``manifest.json`` (command, arguments, versions) with
 ``"complete": true`` only once everything is written; a folder holding an earlier run is refused
@@ -54,13 +56,14 @@ def add_parser(subparsers) -> None:
     p.add_argument("sequence", type=Path, help="sequence folder (…/sequences/<name>)")
     p.add_argument("--method", default="edgeconnect", choices=FILTER_METHODS, metavar="METHOD",
                    help="edgeconnect (default: the embedded checkpoint, +2 dB PSNR over Telea on held-out "
-                        "synthetic frames) | " + " | ".join(FILTER_METHODS[1:]))
+                        "synthetic frames) | tradeoff (the embedded inpainter trained for privacy and SLAM accuracy, "
+                        "docs/tradeoff.md) | " + " | ".join(FILTER_METHODS[2:]))
     p.add_argument("--out", type=Path, required=True, help="output root (sequences/<name> is created)")
     p.add_argument("--masks", choices=("gt", "detect"), default=None,
                    help="ground-truth synthetic masks or detections (default: gt when masks/ exists)")
     p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz; default: the embedded detector for the frames' domain)")
     p.add_argument("--model", type=Path, default=None,
-                   help="EdgeConnect Inpainter .npz (for edgeconnect; default: the embedded checkpoint)")
+                   help="EdgeConnect Inpainter .npz (for edgeconnect or tradeoff; default: the embedded checkpoint)")
     p.add_argument("--conf", type=unit_interval, default=None,
                    help="detection threshold (default 0.4, the paper's; lower it for recall, see docs/detector.md)")
     p.add_argument("--propagate", type=nonnegative_int, default=0, metavar="K",

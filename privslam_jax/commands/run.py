@@ -42,7 +42,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--propagate", type=nonnegative_int, default=0, metavar="K",
                    help="carry detections to the K frames before and after by optical flow (recall-first)")
     p.add_argument("--inpainter", default=None, metavar="PATH",
-                   help="EdgeConnect checkpoint for --filter edgeconnect (default: the embedded inpainter)")
+                   help="EdgeConnect checkpoint for --filter edgeconnect or tradeoff (default: the embedded inpainter)")
     p.add_argument("--mode", choices=("mono", "stereo"), default=d.mode, help=f"SLAM input (default {d.mode})")
     p.add_argument("--lift-seed", type=int, default=None, help="fixed lift seed (experiments only; default: OS entropy)")
     p.add_argument("--no-slam", action="store_true", help="stop after the privacy filter")

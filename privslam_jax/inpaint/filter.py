@@ -31,14 +31,20 @@ from privslam_jax.inpaint.crops import crop_box, extract, paste_back
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGenerator
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 
-__all__ = ["EMBEDDED_INPAINTER", "EMBEDDED_REAL_INPAINTER", "FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward",
+__all__ = ["EMBEDDED_INPAINTER", "EMBEDDED_REAL_INPAINTER", "EMBEDDED_TRADEOFF_INPAINTER", "FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward",
            "filter_frame"]
 
-FILTER_METHODS: tuple[str, ...] = ("edgeconnect",) + baselines.METHODS
+INPAINTER_METHODS: tuple[str, ...] = ("edgeconnect", "tradeoff")
+"""Filter methods run by an EdgeConnect :class:`Inpainter`: ``"tradeoff"`` is the same network with the
+checkpoint trained for privacy and SLAM accuracy at once (:data:`EMBEDDED_TRADEOFF_INPAINTER`)."""
+FILTER_METHODS: tuple[str, ...] = INPAINTER_METHODS + baselines.METHODS
 EMBEDDED_INPAINTER = Path(__file__).resolve().parents[1] / "assets" / "inpainter_cpu16.npz"
 """The shipped CPU-preset checkpoint trained on the synthetic world (``docs/model_card_inpainter.md``)."""
 EMBEDDED_REAL_INPAINTER = EMBEDDED_INPAINTER.with_name("inpainter_cpu16_real.npz")
 """The same network fine-tuned on real street frames (``docs/model_card_inpainter_real.md``)."""
+EMBEDDED_TRADEOFF_INPAINTER = EMBEDDED_INPAINTER.with_name("inpainter_tradeoff.npz")
+"""The synthetic-world checkpoint fine-tuned for privacy and SLAM accuracy at once, the chosen point of the
+Pareto front (``train/tradeoff.py``, ``docs/model_card_inpainter_tradeoff.md``); ``method="tradeoff"``."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,8 +143,9 @@ class Inpainter:
     @classmethod
     def embedded(cls, domain: str = "synthetic") -> Inpainter:
         """A checkpoint shipped in the package, loaded once per process: ``domain="synthetic"``
-        (:data:`EMBEDDED_INPAINTER`, trained on the synthetic world) or ``"real"``
-        (:data:`EMBEDDED_REAL_INPAINTER`, fine-tuned on real street frames)."""
+        (:data:`EMBEDDED_INPAINTER`, trained on the synthetic world), ``"real"``
+        (:data:`EMBEDDED_REAL_INPAINTER`, fine-tuned on real street frames) or ``"tradeoff"``
+        (:data:`EMBEDDED_TRADEOFF_INPAINTER`, the synthetic one fine-tuned for privacy and SLAM accuracy)."""
         return _embedded(domain)
 
     def without_edge_model(self) -> Inpainter:
@@ -244,9 +251,9 @@ class Inpainter:
         return np.asarray(out[0])
 
 
-@functools.lru_cache(maxsize=2)
+@functools.lru_cache(maxsize=3)
 def _embedded(domain: str) -> Inpainter:
-    paths = {"synthetic": EMBEDDED_INPAINTER, "real": EMBEDDED_REAL_INPAINTER}
+    paths = {"synthetic": EMBEDDED_INPAINTER, "real": EMBEDDED_REAL_INPAINTER, "tradeoff": EMBEDDED_TRADEOFF_INPAINTER}
     if domain not in paths:
         raise ValueError(f"domain must be one of {sorted(paths)}, got {domain!r}")
     if not paths[domain].is_file():
@@ -266,7 +273,8 @@ def filter_frame(
 
     ``image`` is uint8 (0–255), uint16 or float in ``[0, 1]``
     (:func:`privslam_jax.data.images.as_unit_image`; anything else is refused) and the result has
-    its dtype. ``method="edgeconnect"`` without ``inpainter`` uses the embedded default checkpoint."""
+    its dtype. ``method="edgeconnect"`` without ``inpainter`` uses the embedded default checkpoint,
+    ``method="tradeoff"`` the embedded trade-off checkpoint."""
     original = image
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image must be (H, W, 3) RGB, got shape {image.shape}")
@@ -281,10 +289,10 @@ def filter_frame(
     if len(masks) == 0:
         return like_input(image.copy(), original)
     hidden = masks.any(axis=0)
-    if method != "edgeconnect":
+    if method not in INPAINTER_METHODS:
         return like_input(baselines.fill(image, hidden, method, seed=seed), original)
     if inpainter is None:
-        inpainter = Inpainter.embedded()
+        inpainter = Inpainter.embedded("tradeoff" if method == "tradeoff" else "synthetic")
     cfg = inpainter.config
     acc = np.zeros((h, w, 3), np.float64)
     cnt = np.zeros((h, w), np.int32)

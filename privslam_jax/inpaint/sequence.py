@@ -246,7 +246,7 @@ def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector
     frames before anything is written) and return the per-frame mask source and the report."""
     from privslam_jax.data.images import read_image
     from privslam_jax.data.kitti import KittiSequence
-    from privslam_jax.inpaint.filter import FILTER_METHODS, Inpainter
+    from privslam_jax.inpaint.filter import FILTER_METHODS, INPAINTER_METHODS, Inpainter
     from privslam_jax.inpaint.masks import boxes_to_masks, instance_masks
 
     if method not in FILTER_METHODS:
@@ -279,8 +279,9 @@ def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector
                               "card": detector.meta.get("card", {}), "conf": preset.conf, "propagate": propagate,
                               "tta": tta, "privacy_warning": mismatch}
     inpainter = None
-    if method == "edgeconnect":
-        domain = "synthetic" if synthetic else "real"  # the embedded inpainter made for these frames
+    if method in INPAINTER_METHODS:
+        # the embedded inpainter made for these frames; the trade-off point is trained on the synthetic world only
+        domain = "tradeoff" if method == "tradeoff" else "synthetic" if synthetic else "real"
         inpainter = Inpainter.embedded(domain) if model_path is None else Inpainter.load(model_path)
         report["inpainter"] = {"weights": str(model_path) if model_path is not None else f"embedded ({domain})",
                                "config": dataclasses.asdict(inpainter.config)}
@@ -392,7 +393,8 @@ def filter_sequence(
     ``conf``, default the paper's 0.4; ``tta`` and ``propagate`` as in
     :func:`privslam_jax.detect.temporal.detect_sequence`), then each frame is filled.
     ``method="edgeconnect"`` without ``model_path`` uses the embedded inpainter made for the frames:
-    the synthetic-world one on ``privslam synth`` output, the real-frame one on anything else.
+    the synthetic-world one on ``privslam synth`` output, the real-frame one on anything else;
+    ``method="tradeoff"`` the embedded trade-off checkpoint (trained on the synthetic world).
     ``filter_report.json`` records the detector (and its training domain), the inpainter, the settings and the
     number of masks per frame by origin (detected, promoted low-score, propagated).
     Frames are filtered and written one at a time (:func:`iter_filtered`), never all held in memory;
