@@ -189,6 +189,32 @@ def test_route_turns_and_object_classes():
     assert empty.instance_classes == {}
 
 
+def test_loop_route_returns_to_its_start():
+    """The loop route turns one way only, a full 360° a lap, and passes its first pose again (≤ 0.5 m,
+    same heading) after 450–490 m; the lap's repeated street gets no second set of parked objects."""
+    from privslam_jax.data._synth_path import repeated_legs
+
+    s = make_sequence(SynthConfig(num_frames=640, seed=7, route="loop"))
+    T = s.poses
+    yaw = np.unwrap(np.arctan2(T[:, 0, 2], T[:, 2, 2]))
+    steps = np.diff(yaw)
+    assert (steps.max() > 0.05) != (steps.min() < -0.05)  # one turn direction
+    k = 300 + int(np.argmin(np.linalg.norm(T[300:, :3, 3] - T[0, :3, 3], axis=1)))
+    assert np.linalg.norm(T[k, :3, 3] - T[0, :3, 3]) <= 0.5
+    assert abs(abs(yaw[k] - yaw[0]) - 2 * np.pi) < 1e-3
+    lap = np.sum(np.linalg.norm(np.diff(T[: k + 1, :3, 3], axis=0), axis=1))
+    assert 450.0 < lap < 490.0
+    rep = repeated_legs(s.path)
+    assert rep.any() and not rep[:4].any()  # the first lap's four legs are new, later laps repeat them
+    parked = s._table.p0[(s._table.motion == 0) & np.isin(s._table.classes, [2, 5, 7])]  # cars, buses, trucks
+    gaps = np.linalg.norm(parked[:, None] - parked[None], axis=-1) + np.eye(len(parked)) * 1e9
+    assert gaps.min() > 2.0  # parked in a row along the kerb, none placed twice
+    staircase = make_sequence(SynthConfig(num_frames=600, seed=1))
+    assert not repeated_legs(staircase.path).any()
+    with pytest.raises(ValueError, match="route"):
+        make_sequence(SynthConfig(route="circle"))
+
+
 def test_moving_objects_move():
     """Walkers advance by their speed, oncoming cars by 8 m/s along the route, parked objects stay put."""
     from privslam_jax.data import _synth_objects as so

@@ -30,6 +30,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=640, help="image width in px (default 640)")
     p.add_argument("--height", type=int, default=192, help="image height in px (default 192)")
     p.add_argument("--stereo", action="store_true", help="also render and write the right camera (image_3)")
+    p.add_argument("--route", choices=("staircase", "loop"), default="staircase",
+                   help="camera route: 'staircase' (default; turns, never the same street twice) or 'loop' "
+                   "(laps around a 3x2-block rectangle, 463 m a lap: the start is passed again near frame 580-600)")
     p.add_argument("--name", default="synth", help="sequence name (default 'synth')")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--overwrite", action="store_true",
@@ -47,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.name or "/" in args.name or args.name in (".", ".."):
         raise ValueError(f"--name must be a plain folder name, got {args.name!r}")
     seq = make_sequence(
-        SynthConfig(width=args.width, height=args.height, num_frames=args.frames, seed=args.seed, stereo=args.stereo)
+        SynthConfig(width=args.width, height=args.height, num_frames=args.frames, seed=args.seed, stereo=args.stereo,
+                    route=args.route)
     )
     records: list[Any] = []
     seq_dir = write_kitti_sequence(seq, args.out, args.name, progress=not args.quiet, collect=records,

@@ -18,7 +18,7 @@ import dataclasses
 
 import numpy as np
 
-from privslam_jax.data._synth_path import CityLayout, StreetPath, right_of
+from privslam_jax.data._synth_path import CityLayout, StreetPath, repeated_legs, right_of
 
 NB = 4
 NE = 6
@@ -203,7 +203,10 @@ def place_objects(
     if density <= 0:
         return objs
     nodes = path.nodes
+    repeated = repeated_legs(path)
     for k in range(len(nodes) - 1):
+        if repeated[k]:  # a later lap of a loop route: its street is populated already
+            continue
         a = path.leg_dirs[k]
         rgt = right_of(a)
         leg_len = float(np.linalg.norm(nodes[k + 1] - nodes[k]))

@@ -5,7 +5,9 @@ along ``x = i·P`` and ``z = j·P`` (``P`` = block period).  Blocks fill the squ
 
 The path is a monotone "staircase" through the grid: legs along ``+z`` alternate with legs along
 ``±x``, so it turns left and right but never revisits a street (objects placed along one leg never
-collide with another leg).  Every 90° corner is rounded by a circular arc of radius ``r``: for
+collide with another leg).  The loop route (:func:`make_loop_path`) drives laps around a rectangle of
+blocks instead, so the camera comes back to where it started (loop closing); its repeated legs get
+no objects of their own.  Every 90° corner is rounded by a circular arc of radius ``r``: for
 incoming direction ``a`` and outgoing ``b`` at node ``N`` the arc runs from ``N − r·a`` to
 ``N + r·b`` around the centre ``N − r·a + r·b``, ``p(φ) = C + r(−b cos φ + a sin φ)``, with unit
 tangent ``a cos φ + b sin φ``.
@@ -119,3 +121,48 @@ def make_path(rng: np.random.Generator, layout: CityLayout, min_length: float) -
         total += float(np.linalg.norm(nodes[-1] - nodes[-2]))
         heading_z = not heading_z
     return StreetPath(np.asarray(nodes), layout.corner_radius)
+
+
+LOOP_BLOCKS: tuple[int, int] = (3, 2)
+"""Blocks of the loop route's rectangle along ``x`` and ``z``: ``2·(3 + 2)·P`` = 480 m of streets, 463 m
+a lap along the rounded centre line (the camera, 2 m to its right, drives 451–476 m)."""
+
+
+def make_loop_path(rng: np.random.Generator, layout: CityLayout, min_length: float) -> StreetPath:
+    """Laps around a rectangle of :data:`LOOP_BLOCKS` blocks, at least ``min_length`` metres.
+
+    Starts mid-block heading ``+z`` like :func:`make_path`, turns all left or all right (drawn from
+    ``rng``), and passes its start again after one lap (about 58–60 s at the default 8 m/s).
+    """
+    P = layout.period
+    w, h = LOOP_BLOCKS
+    side = 1.0 if rng.random() < 0.5 else -1.0
+    corners = [np.array([0.0, h * P]), np.array([side * w * P, h * P]), np.array([side * w * P, 0.0]), np.array([0.0, 0.0])]
+    nodes = [np.array([0.0, 0.35 * P])]
+    total = 0.0
+    k = 0
+    while total < min_length + 2 * P:
+        nodes.append(corners[k % 4])
+        total += float(np.linalg.norm(nodes[-1] - nodes[-2]))
+        k += 1
+    return StreetPath(np.asarray(nodes), layout.corner_radius)
+
+
+def repeated_legs(path: StreetPath) -> np.ndarray:
+    """``(L,)`` True for a leg that lies on the street of an earlier leg (a later lap of a loop)."""
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    out = []
+    for k in range(len(path.nodes) - 1):
+        a, b = path.nodes[k], path.nodes[k + 1]
+        d = path.leg_dirs[k]
+        rep = False
+        for a0, b0 in seen:
+            d0 = (b0 - a0) / np.linalg.norm(b0 - a0)
+            collinear = abs(d0[0] * d[1] - d0[1] * d[0]) < 1e-9 and abs(d0[0] * (a - a0)[1] - d0[1] * (a - a0)[0]) < 1e-6
+            if collinear:
+                lo0, hi0 = sorted([0.0, float(d0 @ (b0 - a0))])
+                lo, hi = sorted([float(d0 @ (a - a0)), float(d0 @ (b - a0))])
+                rep |= min(hi, hi0) - max(lo, lo0) > 1e-6
+        seen.append((a, b))
+        out.append(rep)
+    return np.asarray(out, bool)

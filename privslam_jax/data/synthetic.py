@@ -30,13 +30,16 @@ import numpy as np
 from flax import struct
 
 from privslam_jax.data import _synth_objects as so
-from privslam_jax.data._synth_path import CityLayout, make_path
+from privslam_jax.data._synth_path import CityLayout, make_loop_path, make_path
 from privslam_jax.data._synth_shade import object_color, static_color, static_fields, static_wall
 from privslam_jax.data._synth_textures import channel, current_channel, sharing
 from privslam_jax.data._synth_trace import trace
 from privslam_jax.types import Camera, Trajectory
 
-__all__ = ["SynthConfig", "SynthFrame", "SyntheticSequence", "make_sequence", "parse_seeds", "COCO_PRIVACY_CLASSES"]
+__all__ = ["SynthConfig", "SynthFrame", "SyntheticSequence", "make_sequence", "parse_seeds", "COCO_PRIVACY_CLASSES", "ROUTES"]
+
+ROUTES: tuple[str, ...] = ("staircase", "loop")
+"""The camera routes :class:`SynthConfig` offers."""
 
 COCO_PRIVACY_CLASSES: dict[int, str] = {0: "person", 1: "bicycle", 2: "car", 3: "motorcycle", 5: "bus", 7: "truck"}
 """The privacy-sensitive COCO classes the world contains (id → name)."""
@@ -76,6 +79,10 @@ class SynthConfig:
     """Object boxes tested per pixel (the nearest that meet the pixel's column)."""
     column_ellipsoids: int = 16
     """Object ellipsoids tested per pixel (the nearest that meet the pixel's column)."""
+    route: str = "staircase"
+    """``staircase``: left and right turns, never the same street twice; ``loop``: laps around a
+    3 × 2-block rectangle (463 m a lap: the camera passes its start again after 58–60 s, frames
+    ~580–600 at the defaults), for loop closing."""
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
@@ -92,6 +99,7 @@ class SynthConfig:
             (self.max_objects > 0, f"max_objects must be > 0, got {self.max_objects}"),
             (self.dda_steps > 0 and self.column_prisms > 0 and self.column_ellipsoids > 0,
              "dda_steps, column_prisms and column_ellipsoids must be > 0"),
+            (self.route in ROUTES, f"route must be one of {ROUTES}, got {self.route!r}"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -261,7 +269,8 @@ class SyntheticSequence:
         rng = np.random.default_rng(config.seed)
         duration = (config.num_frames - 1) / config.fps
         self._s0 = 3.0
-        self.path = make_path(rng, self.layout, float(self._s0 + config.speed * duration + 120.0))
+        route = make_loop_path if config.route == "loop" else make_path
+        self.path = route(rng, self.layout, float(self._s0 + config.speed * duration + 120.0))
         self.objects = so.place_objects(rng, self.path, self.layout, self._s0, float(config.speed), float(duration),
                                         float(config.object_density))
         self.instance_classes: dict[int, int] = {i + 1: o.class_id for i, o in enumerate(self.objects)}
