@@ -45,6 +45,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ignore-masked", action="store_true",
                    help="extract no features where the sequence's masks/ is nonzero (on a `privslam filter` "
                         "output: the filled-in objects)")
+    p.add_argument("--loop-closing", action="store_true",
+                   help="detect and close loops (ORB vocabulary place recognition, Sim(3)/SE(3) check, essential graph, "
+                        "global BA); closed loops are listed in metrics.json")
+    p.add_argument("--vocabulary", type=Path, default=None,
+                   help="ORB vocabulary .npz for --loop-closing (default: the embedded one, train/vocabulary.py)")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
@@ -55,7 +60,14 @@ def run(args: argparse.Namespace) -> int:
 
     seq, frames, n = load_sequence_frames(args.sequence, args.mode, args.max_frames)
     ignore = masked_regions(seq, n) if args.ignore_masked else None
-    cfg = SlamConfig(mode=args.mode, seed=args.seed)
+    if args.vocabulary is not None and not args.loop_closing:
+        raise ValueError("--vocabulary needs --loop-closing")
+    if args.vocabulary is not None:
+        from privslam_jax.slam.vocabulary import load_vocabulary
+
+        load_vocabulary(args.vocabulary)  # refuse a missing or damaged file before any frame is read
+    cfg = SlamConfig(mode=args.mode, seed=args.seed, loop_closing=args.loop_closing,
+                     vocabulary=None if args.vocabulary is None else str(args.vocabulary))
     t0 = time.perf_counter()
     result = run_slam(frames, seq.camera, cfg, timestamps=seq.timestamps[:n], progress=True, total=n, ignore=ignore)
     wall = time.perf_counter() - t0

@@ -128,14 +128,15 @@ LOOP_BLOCKS: tuple[int, int] = (3, 2)
 a lap along the rounded centre line (the camera, 2 m to its right, drives 451–476 m)."""
 
 
-def make_loop_path(rng: np.random.Generator, layout: CityLayout, min_length: float) -> StreetPath:
-    """Laps around a rectangle of :data:`LOOP_BLOCKS` blocks, at least ``min_length`` metres.
+def make_loop_path(rng: np.random.Generator, layout: CityLayout, min_length: float,
+                   blocks: tuple[int, int] = LOOP_BLOCKS) -> StreetPath:
+    """Laps around a rectangle of ``blocks`` blocks (along ``x``, ``z``), at least ``min_length`` metres.
 
     Starts mid-block heading ``+z`` like :func:`make_path`, turns all left or all right (drawn from
     ``rng``), and passes its start again after one lap (about 58–60 s at the default 8 m/s).
     """
     P = layout.period
-    w, h = LOOP_BLOCKS
+    w, h = blocks
     side = 1.0 if rng.random() < 0.5 else -1.0
     corners = [np.array([0.0, h * P]), np.array([side * w * P, h * P]), np.array([side * w * P, 0.0]), np.array([0.0, 0.0])]
     nodes = [np.array([0.0, 0.35 * P])]

@@ -81,8 +81,10 @@ class SynthConfig:
     """Object ellipsoids tested per pixel (the nearest that meet the pixel's column)."""
     route: str = "staircase"
     """``staircase``: left and right turns, never the same street twice; ``loop``: laps around a
-    3 × 2-block rectangle (463 m a lap: the camera passes its start again after 58–60 s, frames
-    ~580–600 at the defaults), for loop closing."""
+    rectangle of ``loop_blocks`` blocks (3 × 2: 463 m a lap, the camera passes its start again after
+    58–60 s, frames ~580–600 at the defaults), for loop closing."""
+    loop_blocks: tuple[int, int] = (3, 2)
+    """Blocks of the loop route's rectangle along ``x`` and ``z`` (48 m each)."""
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
@@ -100,6 +102,8 @@ class SynthConfig:
             (self.dda_steps > 0 and self.column_prisms > 0 and self.column_ellipsoids > 0,
              "dda_steps, column_prisms and column_ellipsoids must be > 0"),
             (self.route in ROUTES, f"route must be one of {ROUTES}, got {self.route!r}"),
+            (len(self.loop_blocks) == 2 and all(int(b) == b and b >= 1 for b in self.loop_blocks),
+             f"loop_blocks must be two integers >= 1, got {self.loop_blocks}"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -269,8 +273,11 @@ class SyntheticSequence:
         rng = np.random.default_rng(config.seed)
         duration = (config.num_frames - 1) / config.fps
         self._s0 = 3.0
-        route = make_loop_path if config.route == "loop" else make_path
-        self.path = route(rng, self.layout, float(self._s0 + config.speed * duration + 120.0))
+        length = float(self._s0 + config.speed * duration + 120.0)
+        if config.route == "loop":
+            self.path = make_loop_path(rng, self.layout, length, tuple(int(b) for b in config.loop_blocks))
+        else:
+            self.path = make_path(rng, self.layout, length)
         self.objects = so.place_objects(rng, self.path, self.layout, self._s0, float(config.speed), float(duration),
                                         float(config.object_density))
         self.instance_classes: dict[int, int] = {i + 1: o.class_id for i, o in enumerate(self.objects)}

@@ -38,7 +38,7 @@ from privslam_jax.slam.frontend import TH_LOW, Features, match_descriptors, sear
 from privslam_jax.types import Camera, PointCloud
 
 __all__ = ["MappingConfig", "KeyFrame", "Map", "triangulate_new_points", "fuse_into_neighbours",
-           "cull_points", "local_bundle_adjustment", "solve_local_ba", "project", "camera_center",
+           "cull_points", "local_bundle_adjustment", "global_bundle_adjustment", "adjust_keyframes", "solve_local_ba", "project", "camera_center",
            "stereo_u_right"]
 
 CHI2_MONO = 5.991
@@ -232,6 +232,29 @@ class Map:
         self._bad.data[pid] = True
         rows = np.flatnonzero(self._obs_ok.v & self._bad.data[self._obs_pt.v])
         self._erase_obs_rows(rows)
+
+    def replace_points(self, old: np.ndarray, new: np.ndarray) -> int:
+        """Merge each point ``old[k]`` into ``new[k]`` (ORB-SLAM ``MapPoint::Replace``, loop fusion): its
+        observations move to ``new[k]`` except in keyframes that see ``new[k]`` already; ``old[k]``
+        becomes bad.  Returns the observations moved."""
+        moved = 0
+        for o, n in zip(np.asarray(old, np.int64), np.asarray(new, np.int64)):
+            if o == n or self.bad[o] or self.bad[n]:
+                continue
+            rows = np.flatnonzero(self._obs_ok.v & (self._obs_pt.v == o))
+            seen = set(self._obs_kf.v[self._obs_ok.v & (self._obs_pt.v == n)].tolist())
+            keep = np.array([self._obs_kf.v[r] not in seen for r in rows], bool)
+            self._erase_obs_rows(rows[~keep])
+            for r in rows[keep]:
+                self._obs_pt.data[r] = n
+                self.keyframes[self._obs_kf.v[r]].point_ids[self._obs_kp.v[r]] = n
+            self._n_obs.data[o] -= int(keep.sum())
+            self._n_obs.data[n] += int(keep.sum())
+            self._visible.data[n] += self.visible[o]
+            self._found.data[n] += self.found[o]
+            self._bad.data[o] = True
+            moved += int(keep.sum())
+        return moved
 
     def erase_observations(self, rows: np.ndarray) -> None:
         """Drop observation rows; points left without observations become bad."""
@@ -550,9 +573,31 @@ def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_mi
     if 0 in local:  # the first keyframe anchors the map
         local.remove(0)
         fixed_list.append(0)
-    cams = local + fixed_list
     if not local:
         return {"ba_points": 0}
+    return adjust_keyframes(m, local, fixed_list, cfg.ba_iterations)
+
+
+def global_bundle_adjustment(m: Map, iterations: int = 10) -> dict:
+    """ORB-SLAM's global BA (after a loop closure): every keyframe and good point, the first keyframe fixed."""
+    ids = [k.id for k in m.keyframes]
+    if len(ids) < 2:
+        return {"ba_points": 0}
+    return adjust_keyframes(m, ids[1:], ids[:1], iterations)
+
+
+def adjust_keyframes(m: Map, local: list[int], fixed_list: list[int], iterations: int) -> dict:
+    """Bundle-adjust the keyframes ``local`` and every good point they observe, with the keyframes
+    ``fixed_list`` held constant (their observations of those points count too); then drop the
+    observations with ``χ²`` above the 95 % threshold.  Returns statistics."""
+    cams = list(local) + list(fixed_list)
+    local_set = np.zeros(len(m.keyframes), bool)
+    local_set[local] = True
+    rows, okf, opt = m.observations()
+    pts_mask = np.zeros(m.n_points, bool)
+    pts_mask[opt[local_set[okf]]] = True
+    pts_mask &= ~m.bad
+    sel = pts_mask[opt]
     cam_index = np.full(len(m.keyframes), -1, np.int64)
     cam_index[cams] = np.arange(len(cams))
     sel &= cam_index[okf] >= 0
@@ -577,7 +622,7 @@ def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_mi
     fixed = np.zeros(len(cams), bool)
     fixed[len(local):] = True
     new_poses, new_pts = solve_local_ba(poses, m.xyz[pids], cam_index[okf], pt_index[opt], uv, s2, fixed,
-                                        m.camera, cfg.ba_iterations, obs_u_right=ur)
+                                        m.camera, iterations, obs_u_right=ur)
     for i, c in enumerate(local):
         m.keyframes[c].T_c_w = new_poses[i]
     good_pts = np.isfinite(new_pts).all(1)

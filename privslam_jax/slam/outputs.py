@@ -10,7 +10,7 @@ ground truth is read from ``…/poses/<id>.txt`` when present.  :func:`write_out
 * ``metrics.json`` — ``frames``, ``tracked``, ``lost_frames``, ``fps`` (all stages),
   ``tracking_fps`` (1 / median per-frame time of extraction + tracking, without local mapping),
   per-stage median times,
-  events, and with ground truth ``ate_rmse_se3``, ``ate_rmse_sim3``, ``rpe_trans``, ``rpe_rot``
+  events, ``loops`` (each closed loop: query and matched keyframe, inliers, matches, scale, correction), and with ground truth ``ate_rmse_se3``, ``ate_rmse_sim3``, ``rpe_trans``, ``rpe_rot``
   (evo semantics, :mod:`privslam_jax.metrics.trajectory`) and ``path_length``;
 * ``trajectory_xz.png`` (estimate aligned to the ground truth, top view) and
   ``ate_over_time.png`` (per-frame position error after alignment; Sim(3) for mono, SE(3) else).
@@ -22,6 +22,8 @@ output of ``privslam filter`` these are the regions it filled in, whose texture 
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import json
 from pathlib import Path
@@ -90,6 +92,7 @@ def slam_metrics(result, timestamps: np.ndarray, gt: np.ndarray | None, mode: st
         "tracking_fps": float(1.0 / np.nanmedian(track)) if np.isfinite(track).any() else None,
         "median_ms": {k: float(np.nanmedian(v) * 1e3) for k, v in result.timings.items() if np.isfinite(v).any()},
         "events": result.events,
+        "loops": [dataclasses.asdict(loop) for loop in result.loops],
     }
     if gt is not None:
         from privslam_jax.metrics.trajectory import rpe, trajectory_metrics

@@ -15,6 +15,8 @@ synchronously right after a keyframe is chosen, so results do not depend on thre
   (0.9 mono, 0.75 stereo/RGB-D) or ``max_frames_between_kf`` frames passed, and (stereo/RGB-D) when
   it tracks fewer than 100 close points but sees more than 70 untracked close ones.
 * **Mapping** (:mod:`.mapping`) — culling, triangulation, fusion, local BA.
+* **Loop closing** (:mod:`.loop_closing`, with ``SlamConfig.loop_closing``) — after local mapping:
+  bag-of-words candidates, Sim(3)/SE(3) verification, correction, essential graph, global BA.
 * **Output** — like ORB-SLAM's ``SaveTrajectory``, each frame's pose is stored relative to its
   reference keyframe and composed with that keyframe's final (bundle-adjusted) pose.
 
@@ -27,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -34,6 +37,7 @@ import numpy as np
 
 from privslam_jax.slam.frontend import OrbConfig, extract_orb, rgbd_depths, stereo_depths, to_gray_u8
 from privslam_jax.slam.initializer import InitConfig, initialize_two_view
+from privslam_jax.slam.loop_closing import LoopClosure, LoopCloser, LoopConfig
 from privslam_jax.slam.mapping import (
     KeyFrame,
     Map,
@@ -52,11 +56,15 @@ from privslam_jax.slam.tracking import (
     track_local_map,
     track_motion_model,
 )
+from privslam_jax.slam.vocabulary import load_vocabulary
 from privslam_jax.types import Camera, PointCloud, Trajectory
 
 __all__ = ["SlamConfig", "SlamResult", "Slam", "run_slam", "MODES"]
 
 MODES = ("mono", "stereo", "rgbd")
+
+EMBEDDED_VOCABULARY = str(Path(__file__).resolve().parents[1] / "assets" / "orb_vocabulary_1k.npz")
+"""The shipped ORB vocabulary (``train/vocabulary.py``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +98,14 @@ class SlamConfig:
     rgbd_baseline: float = 0.08
     """RGB-D: baseline (m) of the virtual stereo pair ``u_r = u − f_x·b/z`` used in pose refinement and
     local BA when the camera has none (ORB-SLAM: ``Camera.bf / f_x``; a camera baseline is used as is)."""
+    loop_closing: bool = False
+    """Detect and close loops after local mapping (:mod:`.loop_closing`: place recognition with the
+    ORB vocabulary, Sim(3)/SE(3) verification, essential graph, global BA)."""
+    loop: LoopConfig = LoopConfig()
+    """Loop-closing settings."""
+    vocabulary: str | None = None
+    """Bag-of-words vocabulary ``.npz`` for loop closing (``None``: the embedded one,
+    ``privslam_jax/assets/orb_vocabulary_1k.npz``)."""
     motion_check_ratio: float = 0.3
     """When the motion model keeps fewer than this fraction of the last frame's inliers (e.g. the onset
     of a turn, where the constant-velocity guess is off and repetitive texture gives a few wrong
@@ -119,7 +135,9 @@ class SlamResult:
     inliers: np.ndarray
     """``(N,)`` pose inliers per frame."""
     events: list[str]
-    """Initialisation, loss and relocalisation messages."""
+    """Initialisation, loss, relocalisation and loop messages."""
+    loops: list[LoopClosure] = dataclasses.field(default_factory=list)
+    """The loops closed (empty without ``SlamConfig.loop_closing``)."""
 
 
 class Slam:
@@ -148,6 +166,10 @@ class Slam:
         self._ref_kf: KeyFrame | None = None
         self._frames_since_kf = 0
         self._lost_since = 0
+        self._loop: LoopCloser | None = None
+        if config.loop_closing:
+            vocab = load_vocabulary(config.vocabulary or EMBEDDED_VOCABULARY)
+            self._loop = LoopCloser(vocab, config.loop, with_scale=config.mode == "mono")
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -447,6 +469,15 @@ class Slam:
         triangulate_new_points(m, kf, nbs, cfg.mapping, stereo=self.depth_mode)
         fuse_into_neighbours(m, kf, nbs)
         local_bundle_adjustment(m, kf, cfg.mapping)
+        if self._loop is not None:
+            t = time.perf_counter()
+            loop = self._loop.process(m, kf, cfg.seed + 104729 * kf.id)
+            self.timings[-1]["loop"] = time.perf_counter() - t
+            if loop is not None:
+                self.events.append(
+                    f"loop closed at frame {frame.index}: keyframe {loop.query} with keyframe {loop.match} "
+                    f"(frame {m.keyframes[loop.match].frame}), {loop.inliers} Sim(3) inliers, {loop.matches} "
+                    f"matches, scale {loop.scale:.3f}, camera moved {loop.correction_m:.2f}")
         frame.T_c_w = kf.T_c_w.copy()
         frame.point_ids = kf.point_ids.copy()
 
@@ -471,6 +502,7 @@ class Slam:
             timings=timings,
             inliers=np.array(self.inliers, np.int64),
             events=list(self.events),
+            loops=list(self._loop.loops) if self._loop is not None else [],
         )
 
 
