@@ -91,6 +91,8 @@ PRIVSLAM_CASES = [
     (["slam", MISSING, "--seed", "-1"], "--seed"),
     (["slam", MISSING, "--max-frames", "0"], "--max-frames"),
     (["slam", MISSING, "--max-frames", "-2"], "--max-frames"),
+    (["slam", MISSING, "--vocabulary", MISSING], "--vocabulary"),
+    (["slam", MISSING, "--loop-closing", "--vocabulary", str(REPO / "README.md")], "--vocabulary"),
 ]
 
 
@@ -214,12 +216,16 @@ TRAIN_CASES = [
     ("tradeoff", ["--workdir", MISSING, "--detector", MISSING], "--detector"),
     ("tradeoff", ["--workdir", MISSING, "--init", str(REPO / "README.md")], "--init"),
     ("tradeoff", ["--workdir", MISSING, "--detector", str(REPO / "privslam_jax/assets/inpainter_cpu16.npz")], "--detector"),
+    ("vocabulary", ["--out", MISSING, "--words", "0"], "--words"),
+    ("vocabulary", ["--out", MISSING, "--words", "1"], "--words"),
+    ("vocabulary", ["--out", MISSING, "--synth-seeds", "5-2"], "--synth-seeds"),
+    ("vocabulary", ["--out", MISSING, "--stride", "0"], "--stride"),
 ]
 
 
 @pytest.fixture(scope="module")
 def train_scripts() -> dict[str, ModuleType]:
-    return {name: _load(name) for name in ("detector", "inpaint", "pseudo_labels", "real_labels", "tradeoff")}
+    return {name: _load(name) for name in ("detector", "inpaint", "pseudo_labels", "real_labels", "tradeoff", "vocabulary")}
 
 
 @pytest.mark.parametrize(("script", "argv", "option"), TRAIN_CASES,

@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from privslam_jax.argtypes import nonnegative_int, positive_int  # noqa: E402
+from privslam_jax.argtypes import nonnegative_int, positive_int, seed_list  # noqa: E402
 
 
 def real_training_frames() -> list[Path]:
@@ -39,13 +39,11 @@ def real_training_frames() -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from privslam_jax.data.synthetic import parse_seeds
-
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, type=Path, help="output .npz")
     ap.add_argument("--words", type=positive_int, default=1024, help="vocabulary size K (default 1024)")
     ap.add_argument("--iterations", type=positive_int, default=10, help="k-majority iterations (default 10)")
-    ap.add_argument("--synth-seeds", type=parse_seeds, default="1-30", help="synthetic worlds (default 1-30)")
+    ap.add_argument("--synth-seeds", type=seed_list, default="1-30", help="synthetic worlds (default 1-30)")
     ap.add_argument("--synth-frames", type=positive_int, default=150, help="frames per synthetic world (default 150)")
     ap.add_argument("--stride", type=positive_int, default=10, help="use every N-th synthetic frame (default 10)")
     ap.add_argument("--real-stride", type=positive_int, default=2, help="use every N-th real frame (default 2)")
@@ -59,14 +57,14 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from privslam_jax.data.synthetic import SynthConfig, make_sequence
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence, parse_seeds
     from privslam_jax.slam.frontend import OrbConfig, extract_orb, to_gray_u8
     from privslam_jax.slam.vocabulary import train_vocabulary
 
     t0 = time.perf_counter()
     orb = OrbConfig()
     descs: list[np.ndarray] = []
-    for seed in tqdm(args.synth_seeds, desc="synthetic worlds", unit="world"):
+    for seed in tqdm(parse_seeds(args.synth_seeds), desc="synthetic worlds", unit="world"):
         seq = make_sequence(SynthConfig(num_frames=args.synth_frames, seed=seed))
         for i in range(0, args.synth_frames, args.stride):
             descs.append(extract_orb(to_gray_u8(seq[i].image), orb).desc)

@@ -48,11 +48,23 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--loop-closing", action="store_true",
                    help="detect and close loops (ORB vocabulary place recognition, Sim(3)/SE(3) check, essential graph, "
                         "global BA); closed loops are listed in metrics.json")
-    p.add_argument("--vocabulary", type=Path, default=None,
-                   help="ORB vocabulary .npz for --loop-closing (default: the embedded one, train/vocabulary.py)")
+    p.add_argument("--vocabulary", type=_vocabulary_file, default=None,
+                   help="ORB vocabulary .npz (implies --loop-closing; default: the embedded one, train/vocabulary.py)")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
+
+
+def _vocabulary_file(text: str) -> Path:
+    """argparse type: a readable vocabulary ``.npz`` (checked before the output folder is claimed)."""
+    from privslam_jax.errors import InputError
+    from privslam_jax.slam.vocabulary import load_vocabulary
+
+    try:
+        load_vocabulary(text)
+    except (FileNotFoundError, InputError) as err:
+        raise argparse.ArgumentTypeError(" ".join(str(err).split())) from err
+    return Path(text)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,13 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
     seq, frames, n = load_sequence_frames(args.sequence, args.mode, args.max_frames)
     ignore = masked_regions(seq, n) if args.ignore_masked else None
-    if args.vocabulary is not None and not args.loop_closing:
-        raise ValueError("--vocabulary needs --loop-closing")
-    if args.vocabulary is not None:
-        from privslam_jax.slam.vocabulary import load_vocabulary
-
-        load_vocabulary(args.vocabulary)  # refuse a missing or damaged file before any frame is read
-    cfg = SlamConfig(mode=args.mode, seed=args.seed, loop_closing=args.loop_closing,
+    cfg = SlamConfig(mode=args.mode, seed=args.seed, loop_closing=args.loop_closing or args.vocabulary is not None,
                      vocabulary=None if args.vocabulary is None else str(args.vocabulary))
     t0 = time.perf_counter()
     result = run_slam(frames, seq.camera, cfg, timestamps=seq.timestamps[:n], progress=True, total=n, ignore=ignore)
