@@ -309,6 +309,11 @@ class LoopCloser:
             m._xyz.data[pid] = m.xyz[pid] @ C[:3, :3].T + C[:3, 3]
             moved[pid] = True
             ref[pid] = i
+        # covisibility before the fusion: links the fusion creates between the two sides are loop edges
+        rows, okf, opt = m.observations()
+        inc = np.zeros((n_kf, m.n_points), bool)
+        inc[okf, opt] = True
+        shared = inc.astype(np.int32) @ inc.T.astype(np.int32)
         # fuse: the loop points found in K_q replace its duplicates
         for k, p in found.items():
             cur = int(kf.point_ids[k])
@@ -321,19 +326,14 @@ class LoopCloser:
         edges, Z = [], []
         for i in range(1, n_kf):
             edges.append((i, i - 1))
-        rows, okf, opt = m.observations()
-        inc = np.zeros((n_kf, m.n_points), bool)
-        inc[okf, opt] = True
-        shared = inc.astype(np.int32) @ inc.T.astype(np.int32)
         ii, jj = np.nonzero(np.triu(shared >= cfg.covisibility_edge, k=2))
         edges.extend(zip(ii.tolist(), jj.tolist()))
         n_tree = len(edges)
         for i in group:
             edges.append((i, c))
         edges_arr = np.asarray(edges, np.int64)
-        for k, (i, j) in enumerate(edges_arr):
-            src = S0 if k >= n_tree else old_T  # loop edges from the corrected poses, the rest as they were
-            Z.append(src[i] @ _sim_inv(src[j]) if k >= n_tree else old_T[i] @ np.linalg.inv(old_T[j]))
+        for k, (i, j) in enumerate(edges_arr):  # loop edges from the corrected poses, the rest as they were
+            Z.append(S0[i] @ _sim_inv(S0[j]) if k >= n_tree else old_T[i] @ np.linalg.inv(old_T[j]))
         fixed = np.zeros(n_kf, bool)
         fixed[[0, c]] = True
         with jax.enable_x64(True):

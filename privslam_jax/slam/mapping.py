@@ -554,13 +554,8 @@ def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_mi
     pid_kf = kf.point_ids[kf.point_ids >= 0]
     cov, _ = m.covisible(pid_kf, exclude=kf.id)
     local = [kf.id] + [int(i) for i in cov[: cfg.window - 1]]
-    local_set = np.zeros(len(m.keyframes), bool)
-    local_set[local] = True
-    rows, okf, opt = m.observations()
-    pts_mask = np.zeros(m.n_points, bool)
-    pts_mask[opt[local_set[okf]]] = True
-    pts_mask &= ~m.bad
-    sel = pts_mask[opt]
+    window = list(local)
+    local_set, _, okf, _, sel = _observations_of(m, window)
     fixed_cand = np.bincount(okf[sel & ~local_set[okf]], minlength=len(m.keyframes))
     fixed_ids = np.flatnonzero(fixed_cand)
     fixed_ids = fixed_ids[np.lexsort((-fixed_ids, -fixed_cand[fixed_ids]))][: cfg.max_fixed]
@@ -575,7 +570,7 @@ def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_mi
         fixed_list.append(0)
     if not local:
         return {"ba_points": 0}
-    return adjust_keyframes(m, local, fixed_list, cfg.ba_iterations)
+    return adjust_keyframes(m, local, fixed_list, cfg.ba_iterations, points_of=window)
 
 
 def global_bundle_adjustment(m: Map, iterations: int = 10) -> dict:
@@ -586,18 +581,26 @@ def global_bundle_adjustment(m: Map, iterations: int = 10) -> dict:
     return adjust_keyframes(m, ids[1:], ids[:1], iterations)
 
 
-def adjust_keyframes(m: Map, local: list[int], fixed_list: list[int], iterations: int) -> dict:
-    """Bundle-adjust the keyframes ``local`` and every good point they observe, with the keyframes
-    ``fixed_list`` held constant (their observations of those points count too); then drop the
-    observations with ``χ²`` above the 95 % threshold.  Returns statistics."""
-    cams = list(local) + list(fixed_list)
-    local_set = np.zeros(len(m.keyframes), bool)
-    local_set[local] = True
+def _observations_of(m: Map, kf_ids: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(in_set (K,), rows, kf, point, sel)``: the valid observation rows, ``sel`` marking those of
+    the good points that a keyframe of ``kf_ids`` observes."""
+    in_set = np.zeros(len(m.keyframes), bool)
+    in_set[kf_ids] = True
     rows, okf, opt = m.observations()
     pts_mask = np.zeros(m.n_points, bool)
-    pts_mask[opt[local_set[okf]]] = True
+    pts_mask[opt[in_set[okf]]] = True
     pts_mask &= ~m.bad
-    sel = pts_mask[opt]
+    return in_set, rows, okf, opt, pts_mask[opt]
+
+
+def adjust_keyframes(m: Map, local: list[int], fixed_list: list[int], iterations: int,
+                     points_of: list[int] | None = None) -> dict:
+    """Bundle-adjust the keyframes ``local`` and every good point that a keyframe of ``points_of``
+    (default ``local``) observes, with the keyframes ``fixed_list`` held constant (their observations of
+    those points count too); then drop the observations with ``χ²`` above the 95 % threshold.
+    Returns statistics."""
+    cams = list(local) + list(fixed_list)
+    _, rows, okf, opt, sel = _observations_of(m, local if points_of is None else points_of)
     cam_index = np.full(len(m.keyframes), -1, np.int64)
     cam_index[cams] = np.arange(len(cams))
     sel &= cam_index[okf] >= 0
