@@ -104,8 +104,8 @@ def write_report(runs: list[dict], path: Path, command: str) -> str:
         if pct[mode]:
             v = np.array(pct[mode])
             lines.append(f"* {mode}: ATE with loop closing median {np.median(v):.3f} % of the path [{v.min():.3f}, "
-                         f"{v.max():.3f}] over {len(v)} worlds; goal ≤ {goal} %: "
-                         f"{'met' if np.all(v <= goal) else 'not met'} in {int((v <= goal).sum())} of {len(v)}")
+                         f"{v.max():.3f}] over {len(v)} worlds; ≤ {goal} % (the goal) in {int((v <= goal).sum())} of "
+                         f"{len(v)} worlds: goal {'met' if np.all(v <= goal) else 'not met'}")
     false_loop = [r for r in runs if r["loop_closing"]
                   for lp in r["loops"] if not lp["correct"]]
     plain = [r for r in runs if r["route"] == "staircase"]
