@@ -21,6 +21,7 @@ def _result(est, n):
         timings={"total": np.full(n, 0.05)},
         tracked=np.ones(n, bool),
         events=[],
+        loops=[],
     )
 
 
