@@ -91,6 +91,7 @@ PRIVSLAM_CASES = [
     (["slam", MISSING, "--seed", "-1"], "--seed"),
     (["slam", MISSING, "--max-frames", "0"], "--max-frames"),
     (["slam", MISSING, "--max-frames", "-2"], "--max-frames"),
+    (["slam", MISSING, "--new-map-after", "-1"], "--new-map-after"),
     (["slam", MISSING, "--vocabulary", MISSING], "--vocabulary"),
     (["slam", MISSING, "--loop-closing", "--vocabulary", str(REPO / "README.md")], "--vocabulary"),
 ]

@@ -12,17 +12,40 @@ from privslam_jax.slam.outputs import write_outputs
 from privslam_jax.data.trajectory_io import read_tum_matrices, write_kitti_matrices
 
 
-def _result(est, n):
+def _result(est, n, frame_maps=None):
+    frame_maps = np.zeros(n, np.int64) if frame_maps is None else frame_maps
     return SimpleNamespace(
         trajectory=Trajectory.from_matrices(np.arange(n) * 0.1, est),
         keyframe_indices=np.array([0, 3]),
         keyframe_poses=est[[0, 3]],
         map=PointCloud(xyz=jnp.ones((4, 3)), observations=jnp.full((4,), 2)),
         timings={"total": np.full(n, 0.05)},
-        tracked=np.ones(n, bool),
+        tracked=frame_maps >= 0,
         events=[],
         loops=[],
+        frame_maps=frame_maps,
+        n_maps=len(np.unique(frame_maps[frame_maps >= 0])),
     )
+
+
+def test_two_atlas_maps_are_marked_per_frame_and_measured_on_the_main_one(tmp_path):
+    """Frames 0-7 in map 0 (exact), 8-9 lost, 10-13 in map 1 (another world frame): the errors come from
+    map 0's frames only, and frames.txt says which pose is where."""
+    n = 14
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n) * 0.7
+    gt[:, 2, 3] = np.arange(n) ** 2 * 0.1
+    est = gt.copy()
+    est[10:, :3, 3] += 50.0  # map 1 lives in its own frame
+    maps = np.array([0] * 8 + [-1] * 2 + [1] * 4)
+    metrics = write_outputs(tmp_path, _result(est, n, maps), np.arange(n) * 0.1, gt, "stereo", wall_time=1.0,
+                            plots=False)
+    assert metrics["maps"] == 2 and metrics["metrics_map"] == 0 and metrics["metrics_frames"] == 8
+    assert metrics["ate_rmse_se3"] < 1e-5  # (float32 trajectory); with map 1 it would be metres
+    rows = [line.split() for line in (tmp_path / "frames.txt").read_text().splitlines()[1:]]
+    assert [int(r[1]) for r in rows] == [1] * 8 + [0] * 2 + [1] * 4
+    assert [int(r[2]) for r in rows] == maps.tolist()
+    np.testing.assert_allclose([float(r[0]) for r in rows], np.arange(n) * 0.1, rtol=0, atol=0)
 
 
 def test_straight_drive_gets_sim3_ate(tmp_path):

@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in tqdm(real, desc="real frames", unit="frame", disable=not real):
         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if img is None:
-            raise SystemExit(f"error: {path}: not a readable image")
+            ap.error(f"{path}: not a readable image")
         descs.append(extract_orb(img, orb).desc)
     vocab = train_vocabulary(descs, k=args.words, iterations=args.iterations, seed=args.seed)
     args.out.parent.mkdir(parents=True, exist_ok=True)

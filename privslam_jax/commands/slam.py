@@ -2,8 +2,8 @@
 
 SEQUENCE is a ``…/sequences/<id>`` folder (KITTI odometry, or what ``privslam synth`` writes);
 ground truth is read from ``…/poses/<id>.txt`` when present. DIR receives ``trajectory.txt``
-(TUM, every frame), ``keyframes.txt``, ``map.ply``, ``metrics.json`` and two plots, described in
-:mod:`privslam_jax.slam.outputs`.
+(TUM, every frame), ``frames.txt`` (tracked flag and Atlas map per frame), ``keyframes.txt``,
+``map.ply``, ``metrics.json`` and two plots, described in :mod:`privslam_jax.slam.outputs`.
 
 Tracking loss is reported (metrics.json, stderr), never a crash.
 
@@ -34,7 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "slam",
         help="run ORB-SLAM-style SLAM (mono / stereo / RGB-D) on a KITTI-layout sequence",
         description="Run SLAM on a KITTI-layout sequence folder (…/sequences/<id>); writes trajectory.txt (TUM, "
-                    "every frame), keyframes.txt, map.ply, metrics.json and two plots into --out.",
+                    "every frame), frames.txt, keyframes.txt, map.ply, metrics.json and two plots into --out.",
     )
     p.add_argument("sequence", help="KITTI-layout sequence folder …/sequences/<id>")
     p.add_argument("--mode", choices=("mono", "stereo", "rgbd"), default="mono", help="input mode (default mono)")
@@ -50,6 +50,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "global BA); closed loops are listed in metrics.json")
     p.add_argument("--vocabulary", type=_vocabulary_file, default=None,
                    help="ORB vocabulary .npz (implies --loop-closing; default: the embedded one, train/vocabulary.py)")
+    p.add_argument("--new-map-after", type=nonnegative_int, default=50, metavar="N",
+                   help="Atlas: start a new map after N consecutive lost frames and merge it into an earlier map "
+                        "where place recognition finds they overlap (default 50; 0: stay in one map)")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
@@ -73,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
     seq, frames, n = load_sequence_frames(args.sequence, args.mode, args.max_frames)
     ignore = masked_regions(seq, n) if args.ignore_masked else None
     cfg = SlamConfig(mode=args.mode, seed=args.seed, loop_closing=args.loop_closing or args.vocabulary is not None,
-                     vocabulary=None if args.vocabulary is None else str(args.vocabulary))
+                     vocabulary=None if args.vocabulary is None else str(args.vocabulary),
+                     new_map_after=args.new_map_after)
     t0 = time.perf_counter()
     result = run_slam(frames, seq.camera, cfg, timestamps=seq.timestamps[:n], progress=True, total=n, ignore=ignore)
     wall = time.perf_counter() - t0
@@ -85,11 +89,15 @@ def run(args: argparse.Namespace) -> int:
     if lost:
         print(f"privslam slam: tracking lost on {len(lost)} of {n} frames: {lost} "
               "(motion-model poses written for them)", file=sys.stderr)
-    summary = {k: metrics[k] for k in ("frames", "tracked", "keyframes", "map_points", "fps", "tracking_fps")}
+    if metrics["maps"] > 1:
+        print(f"privslam slam: the run ends with {metrics['maps']} Atlas maps that were never merged; their poses "
+              f"are in different world frames (frames.txt); ATE/RPE use map {metrics.get('metrics_map', 0)} only",
+              file=sys.stderr)
+    summary = {k: metrics[k] for k in ("frames", "tracked", "keyframes", "map_points", "maps", "fps", "tracking_fps")}
     for k in ("ate_rmse_se3", "ate_rmse_sim3", "rpe_trans", "rpe_rot"):
         if k in metrics:
             summary[k] = round(metrics[k], 4)
     print(json.dumps(summary))
-    print(f"wrote {out}/trajectory.txt, keyframes.txt, map.ply, metrics.json"
+    print(f"wrote {out}/trajectory.txt, frames.txt, keyframes.txt, map.ply, metrics.json"
           + ("" if args.no_plots else ", trajectory_xz.png, ate_over_time.png"))
     return 0

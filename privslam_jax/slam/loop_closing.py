@@ -29,6 +29,19 @@ single map), run synchronously after local mapping for every new keyframe :math:
    keyframe, and a keyframe's Sim(3) becomes the rigid pose :math:`[R \mid t/s]`.
 5. **Global BA** over all keyframes and points (the first keyframe fixed).
 
+**Atlas map merging** (ORB-SLAM3's ``MergeLocal``, simplified): keyframes belong to Atlas maps
+(:attr:`~privslam_jax.slam.mapping.KeyFrame.map_id`); a new map starts when tracking stays lost
+(:class:`~privslam_jax.slam.system.SlamConfig`).  Keyframes of *other* maps are candidates of every
+new keyframe too, detected and verified as above (without the drift gate: the two maps' frames are
+unrelated).  An accepted candidate merges the query's map :math:`A` into the candidate's map
+:math:`B`: :math:`M = S_{qB}^{-1} T_{qA}`, with :math:`S_{qB} = S_{ql} T_{lB}`, maps :math:`A`'s world
+frame into :math:`B`'s; every point of :math:`A` moves by :math:`M` (normals rotate, scale ranges
+scale), every keyframe of :math:`A` becomes the rigid part of :math:`T_{iA} M^{-1}`, i.e.
+:math:`[R_i R_M^\top \mid s_M t_i - R_i R_M^\top t_M]`, and joins :math:`B`; the matched points are
+fused and :math:`B` gets a global BA.  :math:`A` moves as one rigid (stereo/RGB-D) or similarity
+(mono) body: the drift inside it is not redistributed (ORB-SLAM3 follows with an essential-graph
+optimisation; a loop closed later in the merged map does that here).
+
 Determinism: RANSAC draws from ``numpy.random.default_rng(seed)``; nothing depends on timing.
 """
 
@@ -41,9 +54,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from privslam_jax.geometry.align import umeyama_np
+from privslam_jax.geometry.sim3 import Sim3
 from privslam_jax.slam.frontend import TH_HIGH, TH_LOW, match_descriptors, search_by_projection
 from privslam_jax.slam.mapping import CHI2_MONO, KeyFrame, Map, global_bundle_adjustment, project
+from privslam_jax.slam.pose_graph import optimize_pose_graph
 from privslam_jax.slam.vocabulary import Vocabulary, bow_scores
+from privslam_jax.types import Camera
 
 __all__ = ["LoopConfig", "LoopClosure", "LoopCloser", "estimate_sim3_ransac"]
 
@@ -103,7 +119,15 @@ class LoopClosure:
     scale: float
     """Scale of :math:`S_{ql}` (1 for SE(3))."""
     correction_m: float
-    """How far the loop moved :math:`K_q`'s camera centre, in map units."""
+    """How far the loop moved :math:`K_q`'s camera centre, in map units (a merge: how far the global BA
+    after the merge moved it)."""
+    merged: bool = False
+    """An Atlas merge: :math:`K_q`'s map ``query_map`` was moved into :math:`K_l`'s map ``match_map``
+    (scaled by ``1 / scale``) and the two became one."""
+    query_map: int = 0
+    """Atlas map of :math:`K_q` when the loop was found."""
+    match_map: int = 0
+    """Atlas map of :math:`K_l`."""
 
 
 def _sim(R: np.ndarray, t: np.ndarray, s: float) -> np.ndarray:
@@ -122,8 +146,7 @@ def _sim_inv(M: np.ndarray) -> np.ndarray:
     return inv
 
 
-def _reproj_ok(X_c: np.ndarray, uv: np.ndarray, sigma2: np.ndarray, m: Map) -> np.ndarray:
-    cam = m.camera
+def _reproj_ok(X_c: np.ndarray, uv: np.ndarray, sigma2: np.ndarray, cam: Camera) -> np.ndarray:
     z = X_c[:, 2]
     zs = np.where(z > 1e-9, z, 1e-9)
     proj = np.c_[cam.fx * X_c[:, 0] / zs + cam.cx, cam.fy * X_c[:, 1] / zs + cam.cy]
@@ -132,7 +155,7 @@ def _reproj_ok(X_c: np.ndarray, uv: np.ndarray, sigma2: np.ndarray, m: Map) -> n
 
 def estimate_sim3_ransac(
     X1: np.ndarray, X2: np.ndarray, uv1: np.ndarray, uv2: np.ndarray, s2_1: np.ndarray, s2_2: np.ndarray,
-    m: Map, with_scale: bool, iterations: int, rng: np.random.Generator,
+    camera: Camera, with_scale: bool, iterations: int, rng: np.random.Generator,
 ) -> tuple[np.ndarray | None, np.ndarray]:
     """RANSAC ``X1 ≈ S₁₂ X2`` over 3-point Umeyama fits; a pair is an inlier when it reprojects within
     ``χ²(2)·σ²`` in both cameras.  Returns ``(S₁₂ as a 4×4 [sR | t], inlier mask)`` (``None`` if no fit)."""
@@ -145,7 +168,7 @@ def estimate_sim3_ransac(
         X2in1 = X2 @ S[:3, :3].T + S[:3, 3]
         Si = _sim_inv(S)
         X1in2 = X1 @ Si[:3, :3].T + Si[:3, 3]
-        return _reproj_ok(X2in1, uv1, s2_1, m) & _reproj_ok(X1in2, uv2, s2_2, m)
+        return _reproj_ok(X2in1, uv1, s2_1, camera) & _reproj_ok(X1in2, uv2, s2_2, camera)
 
     for _ in range(iterations):
         idx = rng.choice(n, 3, replace=False)
@@ -187,13 +210,27 @@ def _search_sim3(m: Map, kf: KeyFrame, S_cw: np.ndarray, pts: np.ndarray) -> dic
     return {int(k): int(p) for k, p in zip(kp[ok], pts[ok])}
 
 
+def _fuse(m: Map, kf: KeyFrame, found: dict[int, int]) -> None:
+    """The loop points found in ``kf`` (``{keypoint: point}``) replace its duplicates (``MapPoint::Replace``)."""
+    for k, p in found.items():
+        cur = int(kf.point_ids[k])
+        if cur < 0:
+            if not np.any((kf.point_ids == p)):
+                m.add_observations(kf, np.array([p]), np.array([k]))
+        elif cur != p:
+            m.replace_points(np.array([cur]), np.array([p]))
+
+
 class LoopCloser:
     """Loop detection and correction over a :class:`~privslam_jax.slam.mapping.Map` (see the module docstring)."""
 
-    def __init__(self, vocabulary: Vocabulary, config: LoopConfig = LoopConfig(), with_scale: bool = True):
+    def __init__(self, vocabulary: Vocabulary, config: LoopConfig = LoopConfig(), with_scale: bool = True,
+                 detect_loops: bool = True):
         self.vocab = vocabulary
         self.cfg = config
         self.with_scale = with_scale
+        self.detect_loops = detect_loops
+        """``False``: only Atlas merges (candidates in other maps), no loops inside a map."""
         self._bow: list[np.ndarray] = []
         self._groups: list[tuple[frozenset[int], int]] = []
         self.loops: list[LoopClosure] = []
@@ -210,9 +247,12 @@ class LoopCloser:
         conn, counts = m.covisible(kf.point_ids[kf.point_ids >= 0], exclude=kf.id)
         near = conn[counts >= 15]
         min_score = float(bow_scores(v, V[near]).min()) if len(near) else 0.0
-        shared = np.zeros(len(m.keyframes), bool)
-        shared[conn] = True
-        old = np.flatnonzero(~shared[: max(kf.id - cfg.min_gap, 0)])
+        maps = m.map_ids()
+        eligible = maps != kf.map_id  # other Atlas maps: merge candidates
+        if self.detect_loops:  # the same map: loop candidates at least min_gap keyframes older
+            eligible[: max(kf.id - cfg.min_gap, 0)] |= maps[: max(kf.id - cfg.min_gap, 0)] == kf.map_id
+        eligible[conn] = False
+        old = np.flatnonzero(eligible)
         if len(old) == 0:
             self._groups = []
             return []
@@ -249,7 +289,8 @@ class LoopCloser:
         s2q = m.sigma2(kf.feats.octave[pairs[:, 0]])
         s2l = m.sigma2(lk.feats.octave[pairs[:, 1]])
         S_ql, inl = estimate_sim3_ransac(X1, X2, kf.feats.uv[pairs[:, 0]], lk.feats.uv[pairs[:, 1]], s2q, s2l,
-                                         m, self.with_scale, cfg.ransac_iterations, np.random.default_rng(seed))
+                                         m.camera, self.with_scale, cfg.ransac_iterations,
+                                         np.random.default_rng(seed))
         if S_ql is None or inl.sum() < cfg.min_inliers:
             return None
         # search the loop keyframe's neighbourhood in K_q at the corrected pose ...
@@ -262,7 +303,7 @@ class LoopCloser:
         found = _search_sim3(m, kf, S_qw, pts)
         if len(found) < cfg.min_projection_matches:
             return None
-        if not self.with_scale:
+        if not self.with_scale and lk.map_id == kf.map_id:
             # a metric map drifts by a few percent of the distance travelled: a larger correction is a
             # different place that looks the same (e.g. the road markings of every crossing)
             centres = np.stack([k.center for k in m.keyframes[c: kf.id + 1]])
@@ -285,11 +326,9 @@ class LoopCloser:
 
     # ---------------------------------------------------------------- correction
     def _correct(self, m: Map, kf: KeyFrame, c: int, S_ql: np.ndarray, found: dict[int, int]) -> float:
-        from privslam_jax.geometry.sim3 import Sim3
-        from privslam_jax.slam.pose_graph import optimize_pose_graph
-
         cfg = self.cfg
         n_kf = len(m.keyframes)
+        mine = m.keyframes_of(kf.map_id)  # the loop's Atlas map; the other maps stay fixed and unlinked
         old_T = np.stack([k.T_c_w for k in m.keyframes])
         conn, _ = m.covisible(kf.point_ids[kf.point_ids >= 0], exclude=kf.id)
         group = [kf.id, *[int(i) for i in conn if int(i) != c and abs(int(i) - c) > cfg.min_gap // 2]]
@@ -314,19 +353,12 @@ class LoopCloser:
         inc = np.zeros((n_kf, m.n_points), bool)
         inc[okf, opt] = True
         shared = inc.astype(np.int32) @ inc.T.astype(np.int32)
-        # fuse: the loop points found in K_q replace its duplicates
-        for k, p in found.items():
-            cur = int(kf.point_ids[k])
-            if cur < 0:
-                if not np.any((kf.point_ids == p)):
-                    m.add_observations(kf, np.array([p]), np.array([k]))
-            elif cur != p:
-                m.replace_points(np.array([cur]), np.array([p]))
+        _fuse(m, kf, found)
         # essential graph
         edges, Z = [], []
-        for i in range(1, n_kf):
-            edges.append((i, i - 1))
-        ii, jj = np.nonzero(np.triu(shared >= cfg.covisibility_edge, k=2))
+        for a, b in zip(mine[1:].tolist(), mine[:-1].tolist()):
+            edges.append((a, b))
+        ii, jj = np.nonzero(np.triu(shared >= cfg.covisibility_edge, k=2))  # (never across maps)
         edges.extend(zip(ii.tolist(), jj.tolist()))
         n_tree = len(edges)
         for i in group:
@@ -334,14 +366,15 @@ class LoopCloser:
         edges_arr = np.asarray(edges, np.int64)
         for k, (i, j) in enumerate(edges_arr):  # loop edges from the corrected poses, the rest as they were
             Z.append(S0[i] @ _sim_inv(S0[j]) if k >= n_tree else old_T[i] @ np.linalg.inv(old_T[j]))
-        fixed = np.zeros(n_kf, bool)
-        fixed[[0, c]] = True
+        fixed = np.ones(n_kf, bool)
+        fixed[mine] = False
+        fixed[[mine[0], c]] = True
         with jax.enable_x64(True):
             res = optimize_pose_graph(Sim3.from_matrix(jnp.asarray(S0)), edges_arr, Sim3.from_matrix(jnp.asarray(np.stack(Z))),
                                       fixed=fixed, with_scale=self.with_scale, max_iterations=cfg.pose_graph_iterations)
             S_new = np.asarray(res.poses.as_matrix(), np.float64)
         # every point follows its reference keyframe; keyframes become rigid again
-        for i in range(n_kf):
+        for i in mine.tolist():
             C = _sim_inv(S_new[i]) @ S0[i]
             pid = np.flatnonzero((ref == i) & ~m.bad)
             m._xyz.data[pid] = m.xyz[pid] @ C[:3, :3].T + C[:3, 3]
@@ -351,21 +384,49 @@ class LoopCloser:
             T[:3, 3] = S_new[i][:3, 3] / s
             m.keyframes[i].T_c_w = T
         before = -old_T[kf.id][:3, :3].T @ old_T[kf.id][:3, 3]
-        global_bundle_adjustment(m, cfg.global_ba_iterations)
+        global_bundle_adjustment(m, cfg.global_ba_iterations, kf.map_id)
+        return float(np.linalg.norm(m.keyframes[kf.id].center - before))
+
+    # ---------------------------------------------------------------- Atlas merge
+    def _merge(self, m: Map, kf: KeyFrame, c: int, S_ql: np.ndarray, found: dict[int, int]) -> float:
+        """Move ``kf``'s map into ``c``'s (module docstring), fuse, global BA; returns how far the BA moved ``kf``."""
+        a, b = kf.map_id, m.keyframes[c].map_id
+        M = _sim_inv(S_ql @ m.keyframes[c].T_c_w) @ kf.T_c_w  # map a's world -> map b's world
+        s = float(np.cbrt(np.linalg.det(M[:3, :3])))
+        R = M[:3, :3] / s
+        ids = m.keyframes_of(a)
+        pts = np.flatnonzero(np.isin(m._first_kf.v, ids))  # a point belongs to the map of its first keyframe
+        m._xyz.data[pts] = m.xyz[pts] @ M[:3, :3].T + M[:3, 3]
+        m._normal.data[pts] = m.normal[pts] @ R.T
+        m._max_dist.data[pts] *= s
+        for i in ids.tolist():
+            k = m.keyframes[i]
+            T = np.eye(4)
+            T[:3, :3] = k.T_c_w[:3, :3] @ R.T
+            T[:3, 3] = s * k.T_c_w[:3, 3] - T[:3, :3] @ M[:3, 3]
+            k.T_c_w = T
+            k.map_id = b
+        before = kf.center
+        _fuse(m, kf, found)
+        global_bundle_adjustment(m, self.cfg.global_ba_iterations, b)
         return float(np.linalg.norm(m.keyframes[kf.id].center - before))
 
     # ---------------------------------------------------------------- entry
     def process(self, m: Map, kf: KeyFrame, seed: int) -> LoopClosure | None:
-        """Detect, verify and (when accepted) correct a loop ending at the new keyframe ``kf``."""
+        """Detect, verify and (when accepted) correct a loop ending at the new keyframe ``kf``, or merge
+        its Atlas map into another one."""
         for c, score in self._candidates(m, kf):
             found = self._verify(m, kf, c, seed)
             if found is None:
                 continue
             S_ql, n_inl, matches = found
-            shift = self._correct(m, kf, c, S_ql, matches)
+            q_map, l_map = kf.map_id, m.keyframes[c].map_id
+            merge = q_map != l_map
+            shift = (self._merge if merge else self._correct)(m, kf, c, S_ql, matches)
             self._groups = []
             loop = LoopClosure(query=kf.id, match=c, score=score, inliers=n_inl, matches=len(matches),
-                               scale=float(np.cbrt(np.linalg.det(S_ql[:3, :3]))), correction_m=shift)
+                               scale=float(np.cbrt(np.linalg.det(S_ql[:3, :3]))), correction_m=shift,
+                               merged=merge, query_map=q_map, match_map=l_map)
             self.loops.append(loop)
             return loop
         return None

@@ -71,13 +71,15 @@ class MappingConfig:
 
 @dataclasses.dataclass
 class KeyFrame:
-    """A keyframe: pose, features and the map point of each keypoint (``-1`` if none)."""
+    """A keyframe: pose, features, the map point of each keypoint (``-1`` if none) and the Atlas map
+    it belongs to (ORB-SLAM3's ``KeyFrame::GetMap``; maps share one :class:`Map` store but no points)."""
 
     id: int
     frame: int
     T_c_w: np.ndarray
     feats: Features
     point_ids: np.ndarray
+    map_id: int = 0
 
     @property
     def center(self) -> np.ndarray:
@@ -186,10 +188,19 @@ class Map:
     def sigma2(self, octave: np.ndarray) -> np.ndarray:
         return self.scale_factor ** (2.0 * octave)
 
+    def map_ids(self) -> np.ndarray:
+        """``(K,)`` Atlas map of every keyframe."""
+        return np.array([k.map_id for k in self.keyframes], np.int64)
+
+    def keyframes_of(self, map_id: int) -> np.ndarray:
+        """Ids of the keyframes of Atlas map ``map_id``, oldest first (the first one is its origin)."""
+        return np.flatnonzero(self.map_ids() == map_id)
+
     # ---- edits
-    def add_keyframe(self, frame: int, T_c_w: np.ndarray, feats: Features, point_ids: np.ndarray) -> KeyFrame:
-        """Append a keyframe and register the observations in ``point_ids`` (``-1`` = none)."""
-        kf = KeyFrame(len(self.keyframes), frame, T_c_w.copy(), feats, np.full(len(feats), -1, np.int64))
+    def add_keyframe(self, frame: int, T_c_w: np.ndarray, feats: Features, point_ids: np.ndarray,
+                     map_id: int = 0) -> KeyFrame:
+        """Append a keyframe of Atlas map ``map_id`` and register the observations in ``point_ids`` (``-1`` = none)."""
+        kf = KeyFrame(len(self.keyframes), frame, T_c_w.copy(), feats, np.full(len(feats), -1, np.int64), map_id)
         self.keyframes.append(kf)
         kp = np.flatnonzero(point_ids >= 0)
         pid = point_ids[kp]
@@ -565,17 +576,19 @@ def local_bundle_adjustment(m: Map, kf: KeyFrame, cfg: MappingConfig, n_fixed_mi
         oldest = sorted(local)[: n_fixed_min - len(fixed_list)]
         local = [i for i in local if i not in oldest]
         fixed_list = fixed_list + oldest
-    if 0 in local:  # the first keyframe anchors the map
-        local.remove(0)
-        fixed_list.append(0)
+    origin = int(m.keyframes_of(kf.map_id)[0])
+    if origin in local:  # the first keyframe anchors its map
+        local.remove(origin)
+        fixed_list.append(origin)
     if not local:
         return {"ba_points": 0}
     return adjust_keyframes(m, local, fixed_list, cfg.ba_iterations, points_of=window)
 
 
-def global_bundle_adjustment(m: Map, iterations: int = 10) -> dict:
-    """ORB-SLAM's global BA (after a loop closure): every keyframe and good point, the first keyframe fixed."""
-    ids = [k.id for k in m.keyframes]
+def global_bundle_adjustment(m: Map, iterations: int = 10, map_id: int = 0) -> dict:
+    """ORB-SLAM's global BA (after a loop closure or a map merge): every keyframe of Atlas map ``map_id``
+    and every good point they see, the map's first keyframe fixed."""
+    ids = [int(i) for i in m.keyframes_of(map_id)]
     if len(ids) < 2:
         return {"ba_points": 0}
     return adjust_keyframes(m, ids[1:], ids[:1], iterations)

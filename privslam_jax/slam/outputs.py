@@ -5,13 +5,20 @@ ground truth is read from ``…/poses/<id>.txt`` when present.  :func:`write_out
 
 * ``trajectory.txt`` — TUM ``t x y z qx qy qz qw``, one line per frame (``times.txt`` stamps,
   else frame/10 Hz); lost frames carry the motion-model prediction and are listed in metrics.json;
+* ``frames.txt`` — one line per frame, ``timestamp tracked map`` (``tracked`` 1/0, ``map`` the Atlas
+  map of the pose, ``-1`` none; ``#`` header): which poses of ``trajectory.txt`` are tracked and which
+  share a world frame (evo reads ``trajectory.txt`` as is);
 * ``keyframes.txt`` — TUM poses of the keyframes;
 * ``map.ply`` — map points with their keyframe-observation counts;
 * ``metrics.json`` — ``frames``, ``tracked``, ``lost_frames``, ``fps`` (all stages),
   ``tracking_fps`` (1 / median per-frame time of extraction + tracking, without local mapping),
   per-stage median times,
-  events, ``loops`` (each closed loop: query and matched keyframe, inliers, matches, scale, correction), and with ground truth ``ate_rmse_se3``, ``ate_rmse_sim3``, ``rpe_trans``, ``rpe_rot``
-  (evo semantics, :mod:`privslam_jax.metrics.trajectory`) and ``path_length``;
+  events, ``loops`` (each closed loop or Atlas merge: query and matched keyframe and map, inliers,
+  matches, scale, correction, ``merged``), ``maps`` (Atlas maps at the end), and with ground truth
+  ``ate_rmse_se3``, ``ate_rmse_sim3``, ``rpe_trans``, ``rpe_rot`` (evo semantics,
+  :mod:`privslam_jax.metrics.trajectory`) and ``path_length``; when the run ends with more than one
+  map, the errors are measured on the frames of the map holding the most frames (``metrics_map``,
+  ``metrics_frames``), since the maps' world frames differ;
 * ``trajectory_xz.png`` (estimate aligned to the ground truth, top view) and
   ``ate_over_time.png`` (per-frame position error after alignment; Sim(3) for mono, SE(3) else).
 
@@ -81,6 +88,7 @@ def slam_metrics(result, timestamps: np.ndarray, gt: np.ndarray | None, mode: st
     total = result.timings.get("total", np.full(n, np.nan))
     mapping = np.nan_to_num(result.timings.get("mapping", np.zeros(n)))
     track = total - mapping  # per frame: extraction + stereo/depth + tracking, without local mapping
+    maps = result.frame_maps if result.frame_maps is not None else np.zeros(n, np.int64)
     metrics: dict = {
         "mode": mode,
         "frames": int(n),
@@ -93,15 +101,23 @@ def slam_metrics(result, timestamps: np.ndarray, gt: np.ndarray | None, mode: st
         "median_ms": {k: float(np.nanmedian(v) * 1e3) for k, v in result.timings.items() if np.isfinite(v).any()},
         "events": result.events,
         "loops": [dataclasses.asdict(loop) for loop in result.loops],
+        "maps": result.n_maps,
     }
+    sel = np.ones(n, bool)
+    if len(np.unique(maps[maps >= 0])) > 1:  # several world frames: measure the main map only
+        ids, counts = np.unique(maps[maps >= 0], return_counts=True)
+        sel = maps == ids[np.argmax(counts)]
+        metrics["metrics_map"] = int(ids[np.argmax(counts)])
+        metrics["metrics_frames"] = int(sel.sum())
     if gt is not None:
         from privslam_jax.metrics.trajectory import rpe, trajectory_metrics
 
         metrics["path_length"] = float(np.linalg.norm(np.diff(gt[:n, :3, 3], axis=0), axis=1).sum())
         try:
-            m = trajectory_metrics((ts, T), (ts, gt[:n]))
+            est, ref = (ts[sel], T[sel]), (ts[sel], gt[:n][sel])
+            m = trajectory_metrics(est, ref)
             metrics.update({k: float(v) for k, v in m.items()})
-            rt, _ = rpe((ts, T), (ts, gt[:n]), align="sim3")
+            rt, _ = rpe(est, ref, align="sim3")
             metrics["rpe_trans_sim3"] = float(rt.rmse)
         except ValueError as err:  # e.g. a straight ground-truth path: Umeyama is ill-posed; keep the outputs
             metrics["alignment_error"] = str(err)
@@ -119,6 +135,9 @@ def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | No
     n = T.shape[0]
     ts = np.asarray(timestamps, np.float64)[:n]
     write_tum_matrices(out / "trajectory.txt", ts, T)
+    maps = result.frame_maps if result.frame_maps is not None else np.zeros(n, np.int64)
+    rows = "".join(f"{t!r} {int(k)} {int(mp)}\n" for t, k, mp in zip(ts.tolist(), result.tracked, maps))
+    write_atomic(out / "frames.txt", "# timestamp tracked map\n" + rows)
     write_tum_matrices(out / "keyframes.txt", ts[result.keyframe_indices], result.keyframe_poses)
     save_point_cloud(out / "map.ply", result.map)
     metrics = slam_metrics(result, timestamps, gt, mode, wall_time)

@@ -17,6 +17,13 @@ synchronously right after a keyframe is chosen, so results do not depend on thre
 * **Mapping** (:mod:`.mapping`) — culling, triangulation, fusion, local BA.
 * **Loop closing** (:mod:`.loop_closing`, with ``SlamConfig.loop_closing``) — after local mapping:
   bag-of-words candidates, Sim(3)/SE(3) verification, correction, essential graph, global BA.
+* **Atlas** (ORB-SLAM3's multi-map system) — when tracking stays lost for ``new_map_after`` frames, a
+  new map is initialised (its own world frame; monocular: its own scale) and tracking, relocalisation
+  and local mapping work in it; the earlier maps are kept.  With ``merge_maps``, every new keyframe is
+  also matched by place recognition against the other maps' keyframes, and an accepted match moves
+  the active map into the matched one (Sim(3) mono, SE(3) otherwise) and merges the two
+  (:mod:`.loop_closing`).  Every frame keeps a pose; ``SlamResult.frame_maps`` says in which map
+  (``-1``: none, e.g. before a new map is initialised).
 * **Output** — like ORB-SLAM's ``SaveTrajectory``, each frame's pose is stored relative to its
   reference keyframe and composed with that keyframe's final (bundle-adjusted) pose.
 
@@ -106,6 +113,11 @@ class SlamConfig:
     vocabulary: str | None = None
     """Bag-of-words vocabulary ``.npz`` for loop closing (``None``: the embedded one,
     ``privslam_jax/assets/orb_vocabulary_1k.npz``)."""
+    new_map_after: int = 50
+    """Atlas: start a new map after this many consecutive lost frames (ORB-SLAM3: 5 s, i.e. 50 frames
+    at KITTI's 10 Hz); ``0`` keeps relocalising in the one map forever."""
+    merge_maps: bool = True
+    """Atlas: merge maps that place recognition finds to overlap (uses ``vocabulary``)."""
     motion_check_ratio: float = 0.3
     """When the motion model keeps fewer than this fraction of the last frame's inliers (e.g. the onset
     of a turn, where the constant-velocity guess is off and repetitive texture gives a few wrong
@@ -114,6 +126,8 @@ class SlamConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.new_map_after < 0:
+            raise ValueError(f"new_map_after must be >= 0 (0: never start a new map), got {self.new_map_after}")
 
 
 @dataclasses.dataclass
@@ -137,7 +151,17 @@ class SlamResult:
     events: list[str]
     """Initialisation, loss, relocalisation and loop messages."""
     loops: list[LoopClosure] = dataclasses.field(default_factory=list)
-    """The loops closed (empty without ``SlamConfig.loop_closing``)."""
+    """The loops closed and the Atlas maps merged (``LoopClosure.merged``), in order."""
+    frame_maps: np.ndarray | None = None
+    """``(N,)`` Atlas map of each frame's pose (``-1``: in none, when the run ended before a map was
+    initialised); poses of different maps are in different world frames."""
+    keyframe_maps: np.ndarray | None = None
+    """``(K,)`` Atlas map of each keyframe."""
+
+    @property
+    def n_maps(self) -> int:
+        """Atlas maps at the end of the run (merged maps count once)."""
+        return int(len(np.unique(self.keyframe_maps))) if self.keyframe_maps is not None else 1
 
 
 class Slam:
@@ -166,10 +190,15 @@ class Slam:
         self._ref_kf: KeyFrame | None = None
         self._frames_since_kf = 0
         self._lost_since = 0
+        self._init_ref: Frame | None = None
+        self.active_map = 0
+        """Atlas map that tracking and mapping work in."""
+        self._next_map = 1
         self._loop: LoopCloser | None = None
-        if config.loop_closing:
+        if config.loop_closing or (config.merge_maps and config.new_map_after > 0):
             vocab = load_vocabulary(config.vocabulary or EMBEDDED_VOCABULARY)
-            self._loop = LoopCloser(vocab, config.loop, with_scale=config.mode == "mono")
+            self._loop = LoopCloser(vocab, config.loop, with_scale=config.mode == "mono",
+                                    detect_loops=config.loop_closing)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -194,6 +223,22 @@ class Slam:
             self.frames_rel[i] = (ref.id, frame.T_c_w @ np.linalg.inv(ref.T_c_w))
         self.tracked[i] = tracked
         self.inliers[i] = n
+
+    def _active_keyframes(self) -> np.ndarray:
+        return self.map.keyframes_of(self.active_map)
+
+    def _start_new_map(self, frame: Frame) -> None:
+        """Atlas: keep the current map and initialise a new one from the next frames."""
+        self.events.append(f"new map {self._next_map} started after frame {frame.index} "
+                           f"({self._lost_since} frames lost in map {self.active_map})")
+        self.active_map = self._next_map
+        self._next_map += 1
+        self.initialized = False
+        self._pending = []
+        self._init_ref = None
+        self._ref_kf = None
+        self._velocity = None
+        self._lost_since = 0
 
     def _pose_now(self, frame: Frame) -> np.ndarray:
         """Current estimate of a past frame's ``T_c_w`` via its reference keyframe."""
@@ -252,7 +297,7 @@ class Slam:
             ok = np.isfinite(frame.feats.depth) & (frame.feats.depth > 0)
             if ok.sum() >= self.cfg.min_init_points:
                 frame.T_c_w = np.eye(4)
-                kf = self.map.add_keyframe(frame.index, frame.T_c_w, frame.feats, frame.point_ids)
+                kf = self.map.add_keyframe(frame.index, frame.T_c_w, frame.feats, frame.point_ids, self.active_map)
                 self._create_depth_points(kf, all_points=True)
                 frame.point_ids = kf.point_ids.copy()
                 self._after_init(frame, kf, f"initialised at frame {frame.index} from depth "
@@ -262,12 +307,14 @@ class Slam:
                 self._pending.append(frame)
                 self._record(frame, False, 0)
             return
-        if not self._pending:
+        if self._init_ref is None or len(frame.feats) <= 100:
+            # ORB-SLAM: a frame with more than 100 keypoints becomes the reference, one with fewer resets it
             frame.T_c_w = np.eye(4)
+            self._init_ref = frame if len(frame.feats) > 100 else None
             self._pending.append(frame)
             self._record(frame, False, 0)
             return
-        ref = self._pending[0] if self._init_ref is None else self._init_ref
+        ref = self._init_ref
         res = initialize_two_view(ref.feats, frame.feats, self.camera, self.cfg.seed, self.cfg.init,
                                   self.cfg.orb.scale_factor)
         if res is None:
@@ -279,8 +326,9 @@ class Slam:
             return
         m = self.map
         ref.T_c_w = np.eye(4)
-        kf0 = m.add_keyframe(ref.index, np.eye(4), ref.feats, np.full(len(ref.feats), -1, np.int64))
-        kf1 = m.add_keyframe(frame.index, res.T_cur_ref, frame.feats, np.full(len(frame.feats), -1, np.int64))
+        kf0 = m.add_keyframe(ref.index, np.eye(4), ref.feats, np.full(len(ref.feats), -1, np.int64), self.active_map)
+        kf1 = m.add_keyframe(frame.index, res.T_cur_ref, frame.feats, np.full(len(frame.feats), -1, np.int64),
+                             self.active_map)
         ids = m.add_points(res.xyz, kf0, res.ref_kp)
         m.add_observations(kf1, ids, res.cur_kp)
         # global BA of the two-view map, then scale to median depth 1
@@ -289,14 +337,12 @@ class Slam:
         zmed = float(np.median(m.xyz[good][:, 2])) if len(good) else 1.0
         if not np.isfinite(zmed) or zmed <= 0:
             zmed = 1.0
-        m._xyz.data[: m.n_points] /= zmed
+        m._xyz.data[ids[0]: m.n_points] /= zmed  # the new map's points (the only ones before a new Atlas map)
         kf1.T_c_w[:3, 3] /= zmed
         frame.T_c_w = kf1.T_c_w.copy()
         frame.point_ids = kf1.point_ids.copy()
         self._after_init(frame, kf1, f"initialised at frames {ref.index}-{frame.index}: {len(good)} points, "
                                      f"parallax {res.parallax_deg:.2f} deg, BA outliers {stats.get('ba_outliers', 0)}")
-
-    _init_ref: Frame | None = None
 
     def _after_init(self, frame: Frame, kf: KeyFrame, message: str) -> None:
         self.initialized = True
@@ -316,7 +362,7 @@ class Slam:
             n = track_keyframe_pnp(p, [kf.id], self.map, self.cfg.seed + p.index, self.cfg.tracking)
             ok = n >= self.cfg.tracking.min_inliers
             if not ok:
-                p.T_c_w = self.map.keyframes[0].T_c_w.copy()
+                p.T_c_w = self.map.keyframes[self._active_keyframes()[0]].T_c_w.copy()
             self._ref_kf = kf
             self._record(p, ok, n)
         self._ref_kf = kf
@@ -383,7 +429,8 @@ class Slam:
                     and self._velocity is not None):
                 t = time.perf_counter()
                 keep = (n, frame.T_c_w, frame.point_ids.copy())
-                n_motion = relocalise_along_motion(frame, m, T_last, self._velocity, gap, tcfg)
+                n_motion = relocalise_along_motion(frame, m, T_last, self._velocity, gap, tcfg,
+                                                   self._active_keyframes())
                 if n_motion > n:
                     n, along_motion = n_motion, True
                 else:
@@ -392,7 +439,7 @@ class Slam:
             if n < 10 and self._lost_since > 0:
                 t = time.perf_counter()
                 frame.point_ids[:] = -1
-                n = relocalise(frame, m, seed, tcfg)
+                n = relocalise(frame, m, seed, tcfg, self._active_keyframes())
                 tim["reloc"] = time.perf_counter() - t
                 if n >= tcfg.reloc_min_inliers:
                     self.events.append(f"relocalised at frame {frame.index} ({n} inliers)")
@@ -434,16 +481,19 @@ class Slam:
             frame.T_c_w = np.linalg.matrix_power(V, gap) @ T_last
             frame.point_ids[:] = -1
             self._record(frame, False, n)
+            if 0 < cfg.new_map_after <= self._lost_since:
+                self._start_new_map(frame)
         self._last = frame
 
     def _need_keyframe(self, frame: Frame, n_tracked: int) -> bool:
         m, cfg = self.map, self.cfg
         ref = self._ref_kf
-        min_obs = 2 if len(m.keyframes) <= 2 else 3
+        n_kf = len(self._active_keyframes())
+        min_obs = 2 if n_kf <= 2 else 3
         pid = ref.point_ids[ref.point_ids >= 0]
         n_ref = int(((m.n_obs[pid] >= min_obs) & ~m.bad[pid]).sum())
         ratio = cfg.kf_ratio_depth if self.depth_mode else cfg.kf_ratio_mono
-        if len(m.keyframes) < 2:
+        if n_kf < 2:
             ratio = 0.4
         c1 = self._frames_since_kf >= cfg.max_frames_between_kf
         need_close = False
@@ -458,7 +508,7 @@ class Slam:
 
     def _insert_keyframe(self, frame: Frame) -> None:
         m, cfg = self.map, self.cfg
-        kf = m.add_keyframe(frame.index, frame.T_c_w, frame.feats, frame.point_ids)
+        kf = m.add_keyframe(frame.index, frame.T_c_w, frame.feats, frame.point_ids, self.active_map)
         self._ref_kf = kf
         self._frames_since_kf = 0
         if self.depth_mode:
@@ -469,17 +519,41 @@ class Slam:
         triangulate_new_points(m, kf, nbs, cfg.mapping, stereo=self.depth_mode)
         fuse_into_neighbours(m, kf, nbs)
         local_bundle_adjustment(m, kf, cfg.mapping)
-        if self._loop is not None:
+        if self._loop is not None and (cfg.loop_closing or self._next_map > 1):
             t = time.perf_counter()
+            moving = self._active_keyframes()
             loop = self._loop.process(m, kf, cfg.seed + 104729 * kf.id)
             self.timings[-1]["loop"] = time.perf_counter() - t
-            if loop is not None:
+            if loop is not None and loop.merged:
+                self._after_merge(moving, loop)
+                self.events.append(
+                    f"map {loop.query_map} merged into map {loop.match_map} at frame {frame.index}: keyframe "
+                    f"{loop.query} with keyframe {loop.match} (frame {m.keyframes[loop.match].frame}), {loop.inliers} "
+                    f"inliers, {loop.matches} matches, scale {1.0 / loop.scale:.3f}")
+            elif loop is not None:
                 self.events.append(
                     f"loop closed at frame {frame.index}: keyframe {loop.query} with keyframe {loop.match} "
                     f"(frame {m.keyframes[loop.match].frame}), {loop.inliers} Sim(3) inliers, {loop.matches} "
                     f"matches, scale {loop.scale:.3f}, camera moved {loop.correction_m:.2f}")
         frame.T_c_w = kf.T_c_w.copy()
         frame.point_ids = kf.point_ids.copy()
+
+    def _after_merge(self, moved: np.ndarray, loop: LoopClosure) -> None:
+        """The keyframes ``moved`` were scaled by ``1 / loop.scale`` into ``loop.match_map``: so are the
+        frame poses stored relative to them, and the motion model."""
+        s = 1.0 / loop.scale
+        if s != 1.0:
+            in_moved = np.zeros(len(self.map.keyframes), bool)
+            in_moved[moved] = True
+            for i, (ref, T) in enumerate(self.frames_rel):
+                if ref >= 0 and in_moved[ref]:
+                    T = T.copy()
+                    T[:3, 3] *= s
+                    self.frames_rel[i] = (ref, T)
+            if self._velocity is not None:
+                self._velocity = self._velocity.copy()
+                self._velocity[:3, 3] *= s
+        self.active_map = loop.match_map
 
     # ------------------------------------------------------------------ results
     def result(self, timestamps: np.ndarray | None = None) -> SlamResult:
@@ -493,6 +567,8 @@ class Slam:
         keys = sorted({k for t in self.timings for k in t})
         timings = {k: np.array([t.get(k, np.nan) for t in self.timings]) for k in keys}
         kfs = self.map.keyframes
+        kf_maps = self.map.map_ids()
+        frame_maps = np.array([kf_maps[r] if r >= 0 else -1 for r, _ in self.frames_rel], np.int64)
         return SlamResult(
             trajectory=Trajectory.from_matrices(ts, T_w_c),
             tracked=np.array(self.tracked, bool),
@@ -503,6 +579,8 @@ class Slam:
             inliers=np.array(self.inliers, np.int64),
             events=list(self.events),
             loops=list(self._loop.loops) if self._loop is not None else [],
+            frame_maps=frame_maps,
+            keyframe_maps=kf_maps,
         )
 
 

@@ -260,16 +260,18 @@ def track_local_map(frame: Frame, m: Map, cfg: TrackingConfig, radius_scale: flo
 
 
 def relocalise_along_motion(frame: Frame, m: Map, T_last: np.ndarray, velocity: np.ndarray, gap: int,
-                            cfg: TrackingConfig) -> int:
+                            cfg: TrackingConfig, keyframes: np.ndarray | None = None) -> int:
     """Relocalise a frame after a short loss by searching the recent keyframes' points around the
     poses the constant-velocity model predicts ``gap + j`` frames after ``T_last``, j = 0…
     ``reloc_motion_steps − 1`` (``gap`` frames were seen since; the extra steps cover frames that
     never arrived), with ``reloc_motion_radius`` × the local-map radius; keeps the pose with the most
     refined inliers.  Appearance-based :func:`relocalise` needs descriptor matches that survive a
     ratio test against a whole keyframe, which fail after a few metres of forward motion; the
-    prediction narrows the search instead.  Returns the inliers (0: no pose set, no matches kept).
+    prediction narrows the search instead.  ``keyframes``: the ids to search (ascending; default all,
+    i.e. the active Atlas map's).  Returns the inliers (0: no pose set, no matches kept).
     """
-    recent = np.arange(len(m.keyframes) - 1, max(-1, len(m.keyframes) - 1 - cfg.max_local_keyframes), -1)
+    ids = np.arange(len(m.keyframes)) if keyframes is None else np.asarray(keyframes, np.int64)
+    recent = ids[::-1][: cfg.max_local_keyframes]
     best: tuple[int, np.ndarray | None, np.ndarray | None] = (0, None, None)
     for j in range(cfg.reloc_motion_steps):
         frame.T_c_w = np.linalg.matrix_power(velocity, gap + j) @ T_last
@@ -281,11 +283,11 @@ def relocalise_along_motion(frame: Frame, m: Map, T_last: np.ndarray, velocity: 
     return best[0]
 
 
-def relocalise(frame: Frame, m: Map, seed: int, cfg: TrackingConfig) -> int:
-    """PnP against candidate keyframes (most recent first), then the local map. Returns inliers."""
-    n_kf = len(m.keyframes)
-    cands = list(range(n_kf - 1, max(-1, n_kf - 1 - cfg.reloc_candidates), -1))
-    for k in cands:
+def relocalise(frame: Frame, m: Map, seed: int, cfg: TrackingConfig, keyframes: np.ndarray | None = None) -> int:
+    """PnP against candidate keyframes (most recent first; of ``keyframes``, ascending ids, when given),
+    then the local map. Returns inliers."""
+    ids = np.arange(len(m.keyframes)) if keyframes is None else np.asarray(keyframes, np.int64)
+    for k in ids[::-1][: cfg.reloc_candidates].tolist():
         n = track_keyframe_pnp(frame, [k], m, seed, cfg)
         if n < 10:
             continue

@@ -1,0 +1,91 @@
+"""Atlas maps inside the SLAM system: a long loss starts a new map, revisiting merges it back.
+
+The camera drives frames 0-69 of a synthetic street, sees nothing (black frames) for a while,
+then drives frames 20-89 again: the second pass starts where the first one already mapped, so
+place recognition must find the first map and merge the second into it.  Judged by the ground
+truth (one alignment for both passes) and against a run without Atlas.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from privslam_jax.data.synthetic import SynthConfig, make_sequence
+from privslam_jax.metrics.trajectory import ate
+from privslam_jax.slam.system import SlamConfig, run_slam
+
+FIRST, BLACK, SECOND = range(0, 70), 25, range(20, 90)
+
+
+@pytest.fixture(scope="module")
+def revisit():
+    seq = make_sequence(SynthConfig(num_frames=90, seed=5, stereo=True))
+
+    def grey(img):
+        return cv2.cvtColor((np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
+
+    pairs = [(grey(seq[i].image), grey(seq[i].image_right)) for i in range(90)]
+    black = np.zeros_like(pairs[0][0])
+    order = [*FIRST, *([-1] * BLACK), *SECOND]
+    frames = [pairs[i] if i >= 0 else (black, black) for i in order]
+    gt = np.stack([seq.poses[i] if i >= 0 else np.eye(4) for i in order])
+    return seq, frames, gt, np.array(order)
+
+
+def _ate_of(res, gt, order, sel):
+    T = np.asarray(res.trajectory.as_matrices(), np.float64)
+    ts = np.arange(len(order), dtype=np.float64)
+    return ate((ts[sel], T[sel]), (ts[sel], gt[sel]), "se3").rmse
+
+
+@pytest.mark.parametrize("mode", ["stereo", "mono"])
+def test_a_long_loss_starts_a_new_map_that_merges_back_where_the_first_one_was(revisit, mode):
+    seq, frames, gt, order = revisit
+    items = frames if mode == "stereo" else [f[0] for f in frames]
+    cfg = SlamConfig(mode=mode, new_map_after=20)
+    res = run_slam(items, seq.camera, cfg)
+    assert any("new map 1 started" in e for e in res.events), res.events
+    merges = [lc for lc in res.loops if lc.merged]
+    assert len(merges) == 1, res.events
+    kf = res.keyframe_indices
+    lc = merges[0]
+    assert (lc.query_map, lc.match_map) == (1, 0)
+    # the merge joins two keyframes the ground truth puts at the same place
+    assert np.linalg.norm(gt[kf[lc.query], :3, 3] - gt[kf[lc.match], :3, 3]) <= 5.0
+    if mode == "stereo":
+        assert lc.scale == pytest.approx(1.0, abs=1e-12)
+    # one map at the end; the black frames belong to none, the tracked ones to map 0
+    assert res.n_maps == 1 and set(res.keyframe_maps.tolist()) == {0}
+    black = order < 0
+    assert not res.tracked[black].any()
+    n1 = len(FIRST)
+    assert set(res.frame_maps[res.tracked].tolist()) == {0}
+    # both passes in one world frame: one alignment fits them both
+    good = res.tracked & ~black
+    second = good.copy()
+    second[:n1] = False
+    assert second.sum() >= 40
+    path = np.linalg.norm(np.diff(gt[:n1, :3, 3], axis=0), axis=1).sum()
+    err = _ate_of(res, gt, order, good) if mode == "stereo" else ate(
+        (np.flatnonzero(good).astype(float), np.asarray(res.trajectory.as_matrices(), np.float64)[good]),
+        (np.flatnonzero(good).astype(float), gt[good]), "sim3").rmse
+    assert err < 0.02 * path, (err, path)
+
+
+def test_without_atlas_a_long_loss_relocalises_in_the_one_map(revisit):
+    """new_map_after=0: 30 frames, the black gap, then frames 20-29 again (mapped): relocalisation, one map."""
+    seq, frames, gt, order = revisit
+    n1 = len(FIRST)
+    keep = [*range(30), *range(n1, n1 + BLACK), *range(n1 + BLACK, n1 + BLACK + 10)]
+    res = run_slam([frames[i] for i in keep], seq.camera, SlamConfig(mode="stereo", new_map_after=0))
+    assert res.n_maps == 1 and res.loops == []
+    assert not any("new map" in e for e in res.events)
+    assert any("relocalised" in e for e in res.events), res.events
+    assert res.tracked[-5:].all() and set(res.frame_maps.tolist()) == {0}
+
+
+def test_new_map_after_must_not_be_negative():
+    with pytest.raises(ValueError, match="new_map_after"):
+        SlamConfig(new_map_after=-1)
