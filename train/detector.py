@@ -77,6 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--domain", choices=("synthetic", "real", "unknown"), default="unknown",
                    help="what the training data was, recorded in the checkpoint (real: any real frames in it)")
     p.add_argument("--coco-names", action="store_true", help="store COCO class names in the checkpoint")
+    p.add_argument("--devices", type=positive_int, default=1,
+                   help="data-parallel over this many devices (the batch split, the state replicated; default 1; "
+                        "on a CPU host XLA_FLAGS=--xla_force_host_platform_device_count=N gives N)")
     p.add_argument("--synth-train-seeds", type=seed_list, default=None,
                    help="A-B: export synthetic seeds A..B as the train split first")
     p.add_argument("--synth-val-seeds", type=seed_list, default=None,
@@ -86,6 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.imgh is not None and a.imgh > a.imgsz:
         p.error(f"argument --imgh: must be at most --imgsz ({a.imgsz}), got {a.imgh}")
+    from privslam_jax.sharding import devices_problem
+
+    if problem := devices_problem(a.devices, a.batch):
+        p.error(f"argument --devices: {problem}")
     if a.coco_names and a.num_classes > len(COCO_NAMES_8):
         p.error(f"argument --coco-names: knows the first {len(COCO_NAMES_8)} COCO names, got --num-classes {a.num_classes}")
     for split, seeds in (("train", a.synth_train_seeds), ("val", a.synth_val_seeds)):
@@ -101,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
                       batch_size=a.batch, epochs=a.epochs, lr0=a.lr0, lrf=a.lrf, cos_lr=a.cos_lr, momentum=a.momentum,
                       warmup_epochs=a.warmup_epochs, warmup_bias_lr=a.warmup_bias_lr, optimizer=a.optimizer, seed=a.seed, ckpt_dir=a.ckpt_dir,
                       ckpt_every=a.ckpt_every, max_steps=a.max_steps,
-                      domain_rand=a.domain_rand, init_weights=a.init_weights)
+                      domain_rand=a.domain_rand, init_weights=a.init_weights, devices=a.devices)
     result = train(cfg)
     names = {i: COCO_NAMES_8[i] for i in range(a.num_classes)} if a.coco_names else None
     save_checkpoint(result.model, a.out, names, domain=a.domain)

@@ -67,6 +67,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--blocks", type=positive_int, default=8)
     p.add_argument("--size", type=positive_int, default=64, help="training crop size, multiple of 4")
     p.add_argument("--batch", type=positive_int, default=8)
+    p.add_argument("--devices", type=positive_int, default=1,
+                   help="data-parallel over this many devices (the batch split, the networks replicated; default 1; "
+                        "on a CPU host XLA_FLAGS=--xla_force_host_platform_device_count=N gives N)")
     p.add_argument("--steps", default="2000,2000,1000", help="edge,inpaint,joint steps")
     p.add_argument("--stages", help="explicit schedule, e.g. edge:1500,edge_inpaint:5000 (overrides --steps; "
                    "edge_inpaint = official MODEL 3: G2 trained on the frozen edge model's output)")
@@ -88,6 +91,10 @@ def main(argv: list[str] | None = None) -> int:
         p.error("give a data source: --synth-frames, --sequence, --folder, --bank and/or --real")
     if a.size % 4:
         p.error(f"argument --size: must be a multiple of 4, got {a.size}")
+    from privslam_jax.sharding import devices_problem
+
+    if problem := devices_problem(a.devices, a.batch):
+        p.error(f"argument --devices: {problem}")
     shape_slice = slice(None)
     if a.shape_files is not None:
         lo, colon, hi = a.shape_files.partition(":")
@@ -127,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
                       lr=a.lr, inpaint_lr=a.inpaint_lr, inpaint_beta1=a.inpaint_beta1,
                       inpaint_lr_final=a.inpaint_lr_final,
                       inpaint_adv_weight=a.inpaint_adv_weight,
-                      prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every)
+                      prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every,
+                      devices=a.devices)
     a.workdir.mkdir(parents=True, exist_ok=True)
     bank_path = a.workdir / "crop_bank.npz"
     data = None

@@ -115,16 +115,21 @@ class TrainConfig:
     """Checkpoint every this many steps (and at the end)."""
     max_steps: int | None = None
     """Stop after this many total steps (e.g. to simulate a kill); ``None``: all epochs."""
+    devices: int = 1
+    """Data parallelism: the batch is split across this many devices, the state replicated
+    (:mod:`privslam_jax.sharding`); ``batch_size`` must be a multiple of it."""
 
     def __post_init__(self) -> None:
         bad_h = self.imgh is not None and (self.imgh % 32 or not 0 < self.imgh <= self.imgsz)
         if self.imgsz <= 0 or self.imgsz % 32 or bad_h:
             raise ValueError(f"imgsz and imgh must be positive multiples of 32 with imgh <= imgsz, got {self.imgsz}, {self.imgh}")
-        for name in ("num_classes", "batch_size", "epochs", "ckpt_every"):
+        for name in ("num_classes", "batch_size", "epochs", "ckpt_every", "devices"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.optimizer not in ("sgd", "adamw"):
             raise ValueError(f"optimizer must be 'sgd' or 'adamw', got {self.optimizer!r}")
+        if self.batch_size % self.devices:
+            raise ValueError(f"batch_size {self.batch_size} must be a multiple of devices {self.devices}")
 
     @property
     def canvas(self) -> tuple[int, int]:
@@ -291,9 +296,15 @@ def _build_step(graphdef, params, stats, tx, feat_shapes, loss_cfg: LossConfig, 
 
 
 def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
-    """Train (or resume training) a YOLOv8; returns the EMA model in eval mode."""
-    from privslam_jax.data.yolo import YoloDataset
+    """Train (or resume training) a YOLOv8; returns the EMA model in eval mode.
 
+    With ``cfg.devices > 1`` every step runs data-parallel (:mod:`privslam_jax.sharding`); a
+    checkpoint written with one device count resumes with another.
+    """
+    from privslam_jax.data.yolo import YoloDataset
+    from privslam_jax.sharding import data_mesh, replicate, shard_batch
+
+    mesh = data_mesh(cfg.devices)
     dataset = YoloDataset(cfg.data, cfg.split)
     n = len(dataset)
     if cfg.batch_size > n:
@@ -326,6 +337,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
         mngr = ocp.CheckpointManager(Path(cfg.ckpt_dir).resolve(), options=ocp.CheckpointManagerOptions(max_to_keep=2))
         if mngr.latest_step() is not None:
             state = _strong(mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state)))
+    state = replicate(state, mesh)
 
     key = (graphdef, cfg.weight_decay * cfg.batch_size / 64, feat_shapes, cfg.ema_decay, cfg.optimizer)
     if key not in _STEP_CACHE:
@@ -344,7 +356,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
         epoch = step // steps_per_epoch
         lrs, mom = _schedule(cfg, step, steps_per_epoch)
         state["opt"] = _set_hparams(state["opt"], lrs, mom)
-        state, losses = step_jit(state, *map(jnp.asarray, batch))
+        state, losses = step_jit(state, *shard_batch(tuple(map(jnp.asarray, batch)), mesh))
         if step + 1 < total_steps:  # prepare the next batch while the (asynchronous) step runs
             batch = batch_of(step + 1)
         losses = np.asarray(losses)

@@ -37,6 +37,7 @@ from flax import nnx
 from tqdm import tqdm
 
 from privslam_jax.data.files import trim_log
+from privslam_jax.sharding import data_mesh, replicate, shard_batch
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint import losses as L
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, Discriminator, EdgeGenerator, InpaintGenerator
@@ -119,6 +120,9 @@ class TrainConfig:
     """Steps between orbax checkpoints (and at the end)."""
     sample_every: int = 500
     """Steps between PNG sample grids (0: never)."""
+    devices: int = 1
+    """Data parallelism: each batch is split across this many devices, the four networks and their
+    optimisers replicated (:mod:`privslam_jax.sharding`); ``batch_size`` must be a multiple of it."""
 
     def __post_init__(self):
         for stage, steps in self.stages:
@@ -126,11 +130,13 @@ class TrainConfig:
                 raise ValueError(f"bad stage {(stage, steps)}; stages are {STAGES} with steps >= 0")
         if self.size % 4:
             raise ValueError(f"size must be a multiple of 4, got {self.size}")
-        for name in ("width", "num_residual_blocks", "size", "batch_size", "checkpoint_every"):
+        for name in ("width", "num_residual_blocks", "size", "batch_size", "checkpoint_every", "devices"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.sample_every < 0:
             raise ValueError(f"sample_every must be >= 0, got {self.sample_every}")
+        if self.batch_size % self.devices:
+            raise ValueError(f"batch_size {self.batch_size} must be a multiple of devices {self.devices}")
         if self.hole_loss not in ("l1", "l1_hole", "l2_hole"):
             raise ValueError(f"hole_loss must be l1, l1_hole or l2_hole, got {self.hole_loss!r}")
         if self.prefill not in PREFILLS:
@@ -293,10 +299,18 @@ class InpaintTrainer:
             "inpaint_d": nnx.Optimizer(self.inpaint_d, d_tx, wrt=nnx.Param),
         }
         self.feature_fn = feature_fn
+        self.mesh = data_mesh(c.devices)
+        self._replicate()
+
+    def _replicate(self) -> None:
+        """Every network's and optimiser's state onto each device of the mesh (nothing on one device)."""
+        if self.mesh is not None:
+            for obj in self._objects().values():
+                nnx.update(obj, replicate(nnx.state(obj), self.mesh))
 
     def step(self, stage: str, batch: dict[str, np.ndarray]) -> tuple[dict[str, float], dict[str, jax.Array]]:
         """One training step of ``stage``; returns (losses, outputs for sample grids)."""
-        b = {k: jnp.asarray(v) for k, v in batch.items()}
+        b = shard_batch({k: jnp.asarray(v) for k, v in batch.items()}, self.mesh)
         logs: dict[str, jax.Array] = {}
         outs: dict[str, jax.Array] = {}
         if stage in ("edge", "joint"):
@@ -335,6 +349,7 @@ class InpaintTrainer:
             st = nnx.state(obj)
             nnx.replace_by_pure_dict(st, pure[k])
             nnx.update(obj, st)
+        self._replicate()
 
     def inpainter(self, size: int | None = None) -> Inpainter:
         """An :class:`Inpainter` on copies of the current generators."""
@@ -407,6 +422,7 @@ def train(
             last = trainer.inpaint_g.dec3
             last.kernel[...] = jnp.zeros_like(last.kernel[...])
             last.bias[...] = jnp.zeros_like(last.bias[...])
+        trainer._replicate()
     end = config.total_steps if max_steps is None else min(max_steps, config.total_steps)
     log_path = workdir / "log.csv"
     trim_log(log_path, start)  # drop rows logged after the checkpoint we resume from, and a row cut short

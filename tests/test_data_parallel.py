@@ -1,0 +1,125 @@
+"""Data-parallel training (issue 21 item 1): k steps on 2 devices = k steps on 1 device, same global batch.
+
+Runs in a subprocess started with ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` (the flag
+must be set before JAX starts, and this test process has started it with one device).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from privslam_jax.sharding import data_mesh, shard_batch
+
+_SCRIPT = textwrap.dedent('''
+    import dataclasses, json
+    from pathlib import Path
+    import cv2, jax, numpy as np
+    from flax import nnx
+    from privslam_jax.detect.train import TrainConfig, train
+
+    root = Path({root!r})
+    rng = np.random.default_rng(0)
+    for sub in ("images", "labels"):
+        (root / "ds" / sub / "train").mkdir(parents=True)
+    for i in range(8):  # textured 64x64 frames with two coloured boxes each
+        img = cv2.GaussianBlur(rng.integers(0, 255, (64, 64, 3)).astype(np.uint8), (5, 5), 1.5)
+        lines = []
+        for _ in range(2):
+            c = int(rng.integers(0, 2))
+            w, h = (int(v) for v in rng.integers(12, 30, 2))
+            x, y = int(rng.integers(0, 64 - w)), int(rng.integers(0, 64 - h))
+            img[y:y + h, x:x + w] = (220, 40, 40) if c == 0 else (40, 220, 40)
+            lines.append(f"{{c}} {{(x + w / 2) / 64}} {{(y + h / 2) / 64}} {{w / 64}} {{h / 64}}")
+        cv2.imwrite(str(root / "ds" / "images" / "train" / f"{{i:03d}}.png"), img)
+        (root / "ds" / "labels" / "train" / f"{{i:03d}}.txt").write_text("\\n".join(lines) + "\\n")
+    cfg = TrainConfig(data=str(root / "ds"), num_classes=2, scale="tiny", imgsz=64, batch_size=4, epochs=2,
+                      warmup_epochs=0.0, ema_decay=0.0)  # EMA off: the model returned is the trained one
+    out = {{"devices": jax.device_count()}}
+    for k in (4,):
+        runs = {{n: train(dataclasses.replace(cfg, devices=n, max_steps=k), progress=False) for n in (1, 2)}}
+        leaves = {{n: [np.asarray(x) for x in jax.tree.leaves(nnx.state(r.model))] for n, r in runs.items()}}
+        rel = [float(np.abs(a - b).max() / (np.abs(a).max() + 1e-12)) for a, b in zip(leaves[1], leaves[2])]
+        out[k] = {{"losses": [runs[n].losses.tolist() for n in (1, 2)], "rel": rel}}
+    # a checkpoint written on 2 devices resumes on 1
+    train(dataclasses.replace(cfg, devices=2, ckpt_dir=str(root / "ck"), max_steps=2, ckpt_every=1), progress=False)
+    res = train(dataclasses.replace(cfg, devices=1, ckpt_dir=str(root / "ck")), progress=False)
+    out["resumed_losses"] = res.losses.tolist()
+    print(json.dumps(out))
+''')
+
+
+def test_detector_steps_on_two_devices_equal_one_device_with_the_same_global_batch(tmp_path):
+    """Tolerances (float32; the two programs sum the batch in another order): every step's losses within
+    1e-4; after four steps every weight leaf within 5e-3 of its largest magnitude, the median leaf
+    within 1e-5 (rounding differences grow through batch norm from step to step; after one step they
+    are about 100 times smaller)."""
+    code = _SCRIPT.format(root=str(tmp_path))
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2
+    for k, tol in (("4", 5e-3),):
+        one, two = out[k]["losses"]
+        assert len(one) == len(two) == int(k)
+        np.testing.assert_allclose(two, one, rtol=1e-4, atol=1e-6)
+        rel = np.asarray(out[k]["rel"])
+        assert len(rel) > 50 and rel.max() <= tol and np.median(rel) <= 1e-5, (rel.max(), np.median(rel))
+    # resumed on 1 device from the 2-device checkpoint: steps 3-4 as the uninterrupted runs
+    np.testing.assert_allclose(out["resumed_losses"], out["4"]["losses"][0][2:], rtol=1e-4, atol=1e-6)
+
+
+def test_one_device_needs_no_mesh_and_a_batch_must_divide():
+    assert data_mesh(1) is None
+    batch = np.zeros((3, 2))
+    assert shard_batch(batch, None) is batch
+    with pytest.raises(ValueError, match="available"):
+        data_mesh(10_000)
+    with pytest.raises(ValueError, match="at least 1"):
+        data_mesh(0)
+
+
+_INPAINT_SCRIPT = textwrap.dedent('''
+    import dataclasses, json, sys
+    import jax, numpy as np
+    sys.path.insert(0, {tests!r})
+    from test_inpaint_train import _data
+    from privslam_jax.inpaint.train import TrainConfig, train
+
+    cfg = TrainConfig(width=4, num_residual_blocks=1, size=32, batch_size=4,
+                      stages=(("edge", 1), ("inpaint", 1), ("joint", 1)), checkpoint_every=10, sample_every=0)
+    leaves = {{}}
+    for n in (1, 2):
+        tr = train(dataclasses.replace(cfg, devices=n), _data, {root!r} + f"/{{n}}", progress=False)
+        leaves[n] = [np.asarray(x) for x in jax.tree.leaves(tr.state_dict())]
+    rel = [float(np.abs(a - b).max() / (np.abs(a).max() + 1e-12)) for a, b in zip(leaves[1], leaves[2])]
+    excess = [float((np.abs(a - b) - 1e-3 * np.abs(a).max()).max()) for a, b in zip(leaves[1], leaves[2])]
+    print(json.dumps({{"devices": jax.device_count(), "rel": rel, "excess": excess, "lr": cfg.lr,
+                      "sharded": len(tr.mesh.devices.flat) if tr.mesh is not None else 1}}))
+''')
+
+
+def test_inpainter_stages_on_two_devices_equal_one_device(tmp_path):
+    """Edge, inpaint and joint steps (both generators, both discriminators, spectral-norm vectors, Adam
+    moments) on 2 devices end where 1 device ends, within float32 rounding: the median leaf within 1e-5
+    of its largest magnitude, every value within 1e-3 of it plus 2·lr per step.  (The biases in front
+    of instance norm have a true gradient of zero; what they get is rounding noise, which Adam turns
+    into steps of up to lr whatever its size.)"""
+    from pathlib import Path
+
+    code = _INPAINT_SCRIPT.format(tests=str(Path(__file__).parent), root=str(tmp_path))
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2 and out["sharded"] == 2
+    rel = np.asarray(out["rel"])
+    assert len(rel) > 20 and np.median(rel) <= 1e-5, np.median(rel)
+    assert max(out["excess"]) <= 2 * out["lr"] * 3, max(out["excess"])
