@@ -23,7 +23,8 @@ synchronously right after a keyframe is chosen, so results do not depend on thre
   also matched by place recognition against the other maps' keyframes, and an accepted match moves
   the active map into the matched one (Sim(3) mono, SE(3) otherwise) and merges the two
   (:mod:`.loop_closing`).  Every frame keeps a pose; ``SlamResult.frame_maps`` says in which map
-  (``-1``: none, e.g. before a new map is initialised).
+  (the frames lost before a new map is initialised are put in it once it is; ``-1``: none, when the
+  run ends before a map was initialised).
 * **Output** — like ORB-SLAM's ``SaveTrajectory``, each frame's pose is stored relative to its
   reference keyframe and composed with that keyframe's final (bundle-adjusted) pose.
 
