@@ -73,7 +73,10 @@ def initialize_two_view(ref: Features, cur: Features, camera: Camera, seed: int,
     pairs = pairs[perm]
     x1, x2 = ref.uv[pairs[:, 0]], cur.uv[pairs[:, 1]]
     K = np.asarray(camera.K, np.float64)
-    E, mask = cv2.findEssentialMat(x1, x2, K, method=cv2.RANSAC, prob=0.999, threshold=cfg.ransac_threshold)
+    try:
+        E, mask = cv2.findEssentialMat(x1, x2, K, method=cv2.RANSAC, prob=0.999, threshold=cfg.ransac_threshold)
+    except cv2.error:  # a degenerate sample (e.g. near-identical points) fails the five-point solver's
+        return None    # polynomial root finding: these two views do not qualify
     if E is None or E.shape != (3, 3):
         return None
     _, R, t, mask2 = cv2.recoverPose(E, x1, x2, K, mask=mask.copy())
