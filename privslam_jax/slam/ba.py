@@ -450,7 +450,7 @@ def bundle_adjust(
     if ur is not None and oc.size and np.any((ur >= 0) & ~(intr[oc, 4] > 0)):
         raise ValueError("stereo observations (obs_u_right >= 0) need a positive camera baseline")
 
-    dtype = jnp.asarray(pts if np.issubdtype(pts.dtype, np.floating) else pts.astype(float)).dtype
+    dtype = jax.dtypes.canonicalize_dtype(pts.dtype if np.issubdtype(pts.dtype, np.floating) else np.float64)
     m_pad = ba_bucket(n_c) if pad else n_c
     p_pad = ba_bucket(n_p, minimum=8) if pad else n_p
     o_pad = ba_bucket(oc.size + 1, minimum=8) if pad else oc.size + 1
@@ -485,5 +485,8 @@ def bundle_adjust(
     inl = np.zeros(n_o, bool)
     inl[valid] = np.asarray(res.inliers)[:n_v]
     return res.replace(
-        T_c_w=jaxlie.SE3(res.T_c_w.wxyz_xyz[:n_c]), points=res.points[:n_p], inliers=jnp.asarray(inl)
+        # unpadded on the host and transferred back: an eager device slice, like ``jnp.asarray`` of a
+        # host array, compiles a program for every new size (jax 0.10)
+        T_c_w=jaxlie.SE3(jax.device_put(np.asarray(res.T_c_w.wxyz_xyz)[:n_c])),
+        points=jax.device_put(np.asarray(res.points)[:n_p]), inliers=jax.device_put(inl)
     )

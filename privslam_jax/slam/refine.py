@@ -437,8 +437,8 @@ def refine_pose(
       buckets: padded sizes (see :func:`pad_to_bucket`).
 
     Inputs are checked (shapes, NaN/inf in valid rows → ``ValueError``) and padded to a size bucket, so
-    calls with ``N`` in the same bucket reuse one compiled program.  ``inliers`` is returned unpadded
-    (``N`` entries, numpy).  Inside ``jit`` call :func:`refine_pose_padded` directly.
+    calls with ``N`` in the same bucket reuse one compiled program.  ``inliers`` and ``active`` are
+    returned unpadded (``N`` entries).  Inside ``jit`` call :func:`refine_pose_padded` directly.
     """
     p = np.asarray(points_w)
     z = np.asarray(uv)
@@ -451,7 +451,9 @@ def refine_pose(
     _check_inputs(p, z, v, ur, isg, camera)
     if not np.all(np.isfinite(np.asarray(T_c_w.wxyz_xyz))):
         raise ValueError("T_c_w contains NaN/inf")
-    dtype = jnp.asarray(p).dtype if np.issubdtype(p.dtype, np.floating) else jnp.asarray(p, float).dtype
+    # the dtype JAX would give these points, found on the host: an eager ``jnp.asarray`` of an (N, 3)
+    # host array compiles a copy program for every new N (jax 0.10; once per tracked frame in SLAM)
+    dtype = jax.dtypes.canonicalize_dtype(p.dtype if np.issubdtype(p.dtype, np.floating) else np.float64)
     p = p.astype(dtype)
     z = z.astype(dtype)
     pts, uvp, vp, urp, isgp = pad_to_bucket(p, z, v, ur, isg, buckets)
@@ -465,4 +467,7 @@ def refine_pose(
         camera_params(camera, dtype),
         config,
     )
-    return out.replace(inliers=out.inliers[:n], active=out.active[:n])
+    # unpadded on the host and transferred back: an eager slice of a device array, like ``jnp.asarray``
+    # of a host array, compiles a program for every new N (jax 0.10)
+    return out.replace(inliers=jax.device_put(np.asarray(out.inliers)[:n]),
+                       active=jax.device_put(np.asarray(out.active)[:n]))

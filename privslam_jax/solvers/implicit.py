@@ -67,8 +67,10 @@ def implicit_argmin(
       converged: ``aux -> bool``, whether the derivative of this solve is meaningful.
       max_dim: largest tangent dimension accepted (``H`` is built densely).
 
-    Returns ``f(x0, θ, const) -> (x*, aux)`` with the same values as ``solve`` and derivatives in ``θ``.
-    ``θ`` must hold only floating-point arrays.
+    Returns ``f(x0, θ, const) -> (x*, aux)`` with the same values as ``solve`` and derivatives in ``θ``,
+    jitted (one compilation per shape, also for eager callers and for ``jacfwd``/``jacrev``/``grad``
+    outside ``jit``).  ``θ`` must hold only floating-point arrays; every leaf of ``x0``, ``θ`` and
+    ``const`` is traced.
     """
 
     aux_tree: list[Any] = []  # the auxiliary outputs cross the custom_jvp as a flat tuple of leaves
@@ -125,4 +127,4 @@ def implicit_argmin(
         x, leaves = f(const_tree, x0, theta, tuple(const_leaves))
         return x, jax.tree.unflatten(aux_tree[0], leaves)
 
-    return call
+    return jax.jit(call)

@@ -111,7 +111,10 @@ def analyze(
     pb = np.r_[pb, np.full((n_chunks_pad - n_chunks) * chunk, dummy)]
     chunk_seg = np.r_[chunk_seg, np.zeros(n_chunks_pad - n_chunks, np.int64)]
     return SchurStructure(
-        pair_a=jnp.asarray(pa, jnp.int32), pair_b=jnp.asarray(pb, jnp.int32), chunk_seg=jnp.asarray(chunk_seg, jnp.int32)
+        # cast on the host and transferred: ``jnp.asarray`` of a host array compiles a copy program
+        # for every new length (jax 0.10), and these lengths change with every local BA
+        pair_a=jax.device_put(pa.astype(np.int32)), pair_b=jax.device_put(pb.astype(np.int32)),
+        chunk_seg=jax.device_put(chunk_seg.astype(np.int32)),
     )
 
 
