@@ -95,6 +95,12 @@ def _runner(tmp_path: Path) -> Iterator[_Runner]:
         r.cleanup()
 
 
+def _programs(cache: Path, name: str) -> set[str]:
+    """Distinct cached programs called ``name`` (an entry is ``<name>-<key>-cache`` with an
+    ``-atime`` file beside it when the cache has a size limit)."""
+    return {p.name[len(name) + 1:].split("-")[0] for p in cache.glob(f"{name}-*")}
+
+
 def _finalized(ckpt_dir: Path) -> list[int]:
     """Steps of the finished orbax checkpoints (a save in progress is a ``<step>.orbax-checkpoint-tmp*`` folder)."""
     if not ckpt_dir.is_dir():
@@ -157,7 +163,7 @@ def test_detector_killed_between_checkpoints_resumes_to_identical_weights(tmp_pa
     assert _finalized(tmp_path / "full" / "ckpt")[-1] == _finalized(ckpt)[-1] == 12
     _assert_same_leaves(_restore(tmp_path / "full" / "ckpt" / "12"), _restore(ckpt / "12"), min_leaves=500)
     _assert_same_npz(tmp_path / "full" / "detector.npz", tmp_path / "killed" / "detector.npz")
-    assert len(list((tmp_path / "xla_cache").glob("jit_step_fn-*"))) == 1  # one compiled train step for all runs
+    assert len(_programs(tmp_path / "xla_cache", "jit_step_fn")) == 1  # one compiled train step for all runs
 
 
 def _log_rows(workdir: Path) -> list[str]:
@@ -206,4 +212,4 @@ def test_inpainter_killed_between_checkpoints_resumes_to_identical_weights(tmp_p
     # the resumed run reused the killed run's compiled steps (restored arrays were once committed to
     # the device, a different jit signature: every step compiled twice)
     for fn in ("_edge_g_step", "_edge_d_step", "_inpaint_g_step", "_inpaint_d_step"):
-        assert len(list((tmp_path / "xla_cache").glob(f"jit_{fn}-*"))) == 1, fn
+        assert len(_programs(tmp_path / "xla_cache", f"jit_{fn}")) == 1, fn
