@@ -14,7 +14,6 @@ from scipy.optimize import least_squares
 from privslam_jax.geometry.projection import reprojection_jacobians, stereo_jacobians
 from privslam_jax.slam.ba import (
     BAConfig,
-    _bundle_adjust_jit,
     _jacobians,
     analyze,
     ba_bucket,
