@@ -7,9 +7,11 @@ faster.  XLA's CPU Cholesky calls into the OpenBLAS that scipy ships, whose extr
 (docs/slam_solvers.md), so OpenBLAS runs single-threaded.
 
 Compiled programs are kept in a persistent XLA compilation cache,
-``$XDG_CACHE_HOME/privslam_jax/xla`` (``~/.cache/privslam_jax/xla``; at most 1 GiB, least recently
-used entries evicted): the next command that needs the same program loads it instead of compiling
-it.  Measured: ``privslam run --out DIR --quiet`` took 94.1 s with an empty cache and 56.1 s the
+``$XDG_CACHE_HOME/privslam_jax/xla`` (``~/.cache/privslam_jax/xla``): the next command that needs
+the same program loads it instead of compiling it.  It grows by a few MB per new configuration (the
+quick start adds 4.5 MB) and can be deleted at any time.  No size limit: with one, JAX rescans the
+folder and reads every entry's access time on each write (``jax/_src/lru_cache.py``), quadratic in
+the number of programs, and the test suite writes thousands.  Measured: ``privslam run --out DIR --quiet`` took 94.1 s with an empty cache and 56.1 s the
 second time, with the same trajectories (this machine, 2 cores).  A cached executable is what XLA
 compiled for the same program, flags and versions, so results do not change.  Set
 ``JAX_COMPILATION_CACHE_DIR`` to use another folder, or to an empty string to turn the cache off; it
@@ -41,7 +43,6 @@ def configure_xla() -> None:
         if writable:  # an unwritable cache would only add a warning per compilation
             os.environ["JAX_COMPILATION_CACHE_DIR"] = str(cache)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")  # small programs add up (module docstring)
-    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(1 << 30))
     # JAX reads its JAX_* variables when it is imported, and importing this package has imported it:
     # the environment is for subprocesses, the config update for this process
     import jax
@@ -50,4 +51,3 @@ def configure_xla() -> None:
         jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
         jax.config.update("jax_persistent_cache_min_compile_time_secs",
                           float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
-        jax.config.update("jax_compilation_cache_max_size", int(os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"]))

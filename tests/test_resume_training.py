@@ -96,8 +96,8 @@ def _runner(tmp_path: Path) -> Iterator[_Runner]:
 
 
 def _programs(cache: Path, name: str) -> set[str]:
-    """Distinct cached programs called ``name`` (an entry is ``<name>-<key>-cache`` with an
-    ``-atime`` file beside it when the cache has a size limit)."""
+    """Distinct cached programs called ``name`` (an entry is ``<name>-<key>-cache``, with an
+    ``-atime`` file beside it when the cache has a size limit, ``JAX_COMPILATION_CACHE_MAX_SIZE``)."""
     return {p.name[len(name) + 1:].split("-")[0] for p in cache.glob(f"{name}-*")}
 
 
