@@ -24,7 +24,14 @@ from privslam_jax.data.synthetic import SynthConfig, make_sequence
 from privslam_jax.inpaint.differentiable import FilterModel, apply_filter
 from privslam_jax.inpaint.filter import Inpainter, InpainterConfig
 from privslam_jax.tradeoff import DetectorModel, PhotometricConfig, accuracy_loss, fidelity_loss, privacy_loss
-from privslam_jax.tradeoff.train import TradeoffConfig, sample_of, synthetic_pairs, tradeoff_step, train_tradeoff
+from privslam_jax.tradeoff.train import (
+    TradeoffConfig,
+    _compiled_step,
+    sample_of,
+    synthetic_pairs,
+    tradeoff_step,
+    train_tradeoff,
+)
 
 TINY = InpainterConfig(width=4, num_residual_blocks=1)
 TIGHT = PhotometricConfig(max_iterations=300, function_tolerance=0.0, step_tolerance=1e-12, min_gradient=0.0)
@@ -58,23 +65,36 @@ def case():
     return model, state, sample, det, det_params
 
 
-def _direct_loss(params, rest, sample, model, det, det_params, cfg: TradeoffConfig):
+def _direct_loss(params, rest, sample, model, det, det_params, weights, cfg: TradeoffConfig):
     """``L`` composed directly from the public functions (no vjp, no cotangents)."""
     state = nnx.merge_state(params, rest)
     y_t = apply_filter(state, sample.target, sample.geometry_t, model, sample.constants_t)
     y_r = apply_filter(state, sample.reference, sample.geometry_r, model, sample.constants_r)
-    loss = fidelity_loss(y_t, sample.background, sample.masks_t)
-    if cfg.privacy_weight:
-        loss += cfg.privacy_weight * privacy_loss(det_params, y_t, sample.masks_t, det,
-                                                  temperature=cfg.privacy_temperature, input_hw=cfg.detector_input_hw)
-    if cfg.accuracy_weight:
-        loss += cfg.accuracy_weight * accuracy_loss(y_t, y_r, sample.reference_depth, sample.intrinsics,
-                                                    jaxlie.SE3(sample.T_t_r), config=cfg.alignment)
-    return loss
+    return (fidelity_loss(y_t, sample.background, sample.masks_t)
+            + weights[0] * privacy_loss(det_params, y_t, sample.masks_t, det, temperature=cfg.privacy_temperature,
+                                        input_hw=cfg.detector_input_hw)
+            + weights[1] * accuracy_loss(y_t, y_r, sample.reference_depth, sample.intrinsics, jaxlie.SE3(sample.T_t_r),
+                                         config=cfg.alignment))
+
+
+@pytest.fixture(scope="module")
+def f64_programs(case):
+    """The float64 SGD step and the directly composed ``L``, each jitted once with the weights as an
+    argument (the step's program includes the alignment: ``accuracy_weight`` ≠ 0)."""
+    model, state, sample, det, det_params = case
+    cfg = dataclasses.replace(BASE, accuracy_weight=1.0)
+    with jax.enable_x64(True):
+        params, rest = nnx.split_state(_f64(state), nnx.Param, ...)
+        smp, dp = _f64(sample), _f64(det_params)
+    sgd = optax.sgd(1.0)
+    step = jax.jit(lambda p, o, w: tradeoff_step(p, rest, o, smp, dp, w, model=model, detector=det, optimizer=sgd,
+                                                 config=cfg))
+    loss = jax.jit(lambda p, w: _direct_loss(p, rest, smp, model, det, dp, w, cfg))
+    return params, sgd, step, loss
 
 
 @pytest.mark.parametrize("privacy_weight, accuracy_weight, h", [(0.0, 0.0, 1e-6), (1.0, 0.0, 1e-6), (0.0, 1.0, 1e-8)])
-def test_each_term_gradient_matches_finite_differences(case, privacy_weight, accuracy_weight, h):
+def test_each_term_gradient_matches_finite_differences(f64_programs, privacy_weight, accuracy_weight, h):
     """One SGD step of rate 1 moves the parameters by −∂L/∂φ; that gradient against central
     differences of the directly composed ``L`` along a direction with the gradient's signs (relative
     error ≤ 1e-3), for the fidelity term alone, with the privacy term, with the accuracy term.
@@ -83,53 +103,53 @@ def test_each_term_gradient_matches_finite_differences(case, privacy_weight, acc
     near its kink, so its minimiser is only piecewise smooth in the pixels; measured relative errors
     for steps 1e-5 / 1e-6 / 1e-7 / 1e-8: 1.3e-2 / 5.4e-3 / 7.2e-5 / 1.3e-5 — finite differences converge to
     the implicit gradient."""
-    model, state, sample, det, det_params = case
-    cfg = dataclasses.replace(BASE, privacy_weight=privacy_weight, accuracy_weight=accuracy_weight)
+    params, sgd, step_fn, f = f64_programs
     with jax.enable_x64(True):
-        params, rest = nnx.split_state(_f64(state), nnx.Param, ...)
-        smp, dp = _f64(sample), _f64(det_params)
-        sgd = optax.sgd(1.0)
-        new, _, logs = jax.jit(lambda p, o: tradeoff_step(p, rest, o, smp, dp, model=model, detector=det,
-                                                          optimizer=sgd, config=cfg))(params, sgd.init(params))
+        w = jnp.asarray([privacy_weight, accuracy_weight], jnp.float64)
+        new, _, logs = step_fn(params, sgd.init(params), w)
         assert float(logs["acc_skipped"]) == 0.0
         grad = jax.tree.map(lambda a, b: a - b, params, new)
         flat = jax.tree.leaves(grad)
         assert sum(float(jnp.abs(g).max()) for g in flat) > 0
         rng = np.random.default_rng(0)
         direction = jax.tree.map(lambda g: jnp.asarray(np.abs(rng.standard_normal(g.shape)) * np.sign(np.asarray(g))), grad)
-        f = jax.jit(lambda p: _direct_loss(p, rest, smp, model, det, dp, cfg))
         # the same value (to the alignment's own tolerance: two compilations of the same solve)
-        assert abs(float(f(params)) - float(logs["loss"])) <= 1e-7 * abs(float(logs["loss"]))
+        assert abs(float(f(params, w)) - float(logs["loss"])) <= 1e-7 * abs(float(logs["loss"]))
         step = lambda s: jax.tree.map(lambda a, d: a + s * d, params, direction)  # noqa: E731
-        fd = (float(f(step(h))) - float(f(step(-h)))) / (2 * h)
+        fd = (float(f(step(h), w)) - float(f(step(-h), w))) / (2 * h)
         analytic = sum(float(jnp.vdot(g, d)) for g, d in zip(flat, jax.tree.leaves(direction)))
         assert abs(fd - analytic) <= 1e-3 * abs(analytic), (fd, analytic)
+    assert step_fn._cache_size() == f._cache_size() == 1  # the weights are an argument: one program each
 
 
-def test_an_unconverged_alignment_drops_the_accuracy_term_instead_of_writing_nan(case):
-    model, state, sample, det, det_params = case
-    params, rest = nnx.split_state(state, nnx.Param, ...)
-    sgd = optax.sgd(1.0)
+TRAIN = dataclasses.replace(BASE, steps=4, checkpoint_every=2, learning_rate=1e-3,
+                            alignment=PhotometricConfig(max_iterations=1))
+"""Adam runs of ``train_tradeoff``; the alignment is cut off after one iteration (its gradient is then
+NaN by design), and both tests below use the one compiled step."""
 
-    def run(cfg):
-        return jax.jit(lambda p, o, smp: tradeoff_step(p, rest, o, smp, det_params, model=model, detector=det,
-                                                       optimizer=sgd, config=cfg))(params, sgd.init(params), sample)
 
-    short = dataclasses.replace(BASE, accuracy_weight=1.0, alignment=PhotometricConfig(max_iterations=1))
-    new, _, logs = run(short)
-    ref, _, ref_logs = run(dataclasses.replace(short, accuracy_weight=0.0))
-    assert float(logs["acc_skipped"]) == 1.0 and float(ref_logs["acc_skipped"]) == 0.0
-    for a, b in zip(jax.tree.leaves(new), jax.tree.leaves(ref)):
+def test_an_unconverged_alignment_drops_the_accuracy_term_instead_of_writing_nan(case, tmp_path):
+    """A step with λ_a = 1 and one with λ_a = 2 end with the same finite weights, bit for bit, and log
+    the term as dropped: the accuracy term added nothing (and no NaN)."""
+    _, _, sample, det, det_params = case
+    init = Inpainter.init(TINY, seed=1)
+    runs = {a: train_tradeoff(dataclasses.replace(TRAIN, steps=1, accuracy_weight=a), init, det_params, det,
+                              tmp_path / str(a), data=iter([sample]), progress=False) for a in (1.0, 2.0)}
+    for a in runs:
+        log = np.genfromtxt(tmp_path / str(a) / "log.csv", delimiter=",", names=True)
+        assert float(log["acc_skipped"]) == 1.0
+        assert float(log["loss"]) == pytest.approx(float(log["fidelity"]) + float(log["privacy"]), abs=2e-6)
+    for a, b, p in zip(jax.tree.leaves(runs[1.0].state), jax.tree.leaves(runs[2.0].state), jax.tree.leaves(init.state)):
         assert np.all(np.isfinite(a))
         np.testing.assert_array_equal(a, b)
+    assert any(not np.array_equal(a, p) for a, p in zip(jax.tree.leaves(runs[1.0].state), jax.tree.leaves(init.state)))
 
 
 def test_a_killed_run_resumes_to_the_same_weights(case, tmp_path):
     """4 steps in one go against 2 steps, a 'kill', and a rerun of the same call: the same weights, the
     same log rows (time column aside)."""
     model, _, _, det, det_params = case
-    cfg = dataclasses.replace(BASE, steps=4, checkpoint_every=2, learning_rate=1e-3, alignment=PhotometricConfig(
-        function_tolerance=1e-6, step_tolerance=1e-6))
+    cfg = TRAIN
     init = Inpainter.init(TINY, seed=1)
     whole = train_tradeoff(cfg, init, det_params, det, tmp_path / "a", progress=False)
     train_tradeoff(cfg, init, det_params, det, tmp_path / "b", max_steps=2, progress=False)
@@ -140,6 +160,10 @@ def test_a_killed_run_resumes_to_the_same_weights(case, tmp_path):
             (tmp_path / "a", tmp_path / "b")]
     assert len(rows[0]) == 5 and rows[0] == rows[1]
     assert not np.allclose(jax.tree.leaves(whole.state)[0], jax.tree.leaves(init.state)[0])  # it trained
+    # a sweep over the weights reuses the compiled step; dropping the accuracy term is another program
+    assert _compiled_step(model, det, cfg) is _compiled_step(model, det, dataclasses.replace(
+        cfg, privacy_weight=3.0, accuracy_weight=0.5, steps=9, seed=4))
+    assert _compiled_step(model, det, cfg) is not _compiled_step(model, det, dataclasses.replace(cfg, accuracy_weight=0.0))
     # the data stream is reproducible: the same config gives the same first pair
     a, b = next(synthetic_pairs(cfg, model)), next(synthetic_pairs(cfg, model))
     np.testing.assert_array_equal(a.target, b.target)

@@ -16,6 +16,9 @@ accuracy term (counted in the log as ``acc_skipped``) instead of writing NaN int
 
 Only the generators' ``nnx.Param`` leaves are trained; the spectral-norm vectors stay as loaded
 (eval mode). Masks are padded to ``rows`` objects so that the whole step is one compiled function.
+The weights ``(λ_p, λ_a)`` are an argument of that function, not constants in it: a sweep over the
+trade-off compiles one step (per process, and once for all processes through the compilation cache);
+only whether the alignment runs at all (``λ_a ≠ 0``) is part of the program.
 Checkpoints (orbax) hold the parameters, the optimiser state and the step; a rerun of
 :func:`train_tradeoff` with the same ``workdir`` resumes from the latest one.
 """
@@ -50,7 +53,8 @@ from privslam_jax.inpaint.filter import Inpainter
 from privslam_jax.tradeoff.objectives import DetectorModel, accuracy_loss, fidelity_loss, privacy_loss
 from privslam_jax.tradeoff.photometric import PhotometricConfig
 
-__all__ = ["TradeoffConfig", "TradeoffSample", "tradeoff_step", "synthetic_pairs", "train_tradeoff", "sample_of"]
+__all__ = ["TradeoffConfig", "TradeoffSample", "loss_weights", "sample_of", "synthetic_pairs", "tradeoff_step",
+           "train_tradeoff"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,15 +159,24 @@ def synthetic_pairs(config: TradeoffConfig, model: FilterModel) -> Iterator[Trad
         yield sample_of(seq[r], seq[r + config.gap], seq.camera, model, config.rows, config.dilation)
 
 
+def loss_weights(config: TradeoffConfig) -> Float[np.ndarray, " 2"]:
+    """``(λ_p, λ_a)`` of ``config``, the ``weights`` argument of :func:`tradeoff_step`."""
+    return np.array([config.privacy_weight, config.accuracy_weight], np.float32)
+
+
 def tradeoff_step(
-    params: PyTree, rest: PyTree, opt_state: PyTree, sample: TradeoffSample, detector_params: PyTree, *,
-    model: FilterModel, detector: DetectorModel, optimizer: optax.GradientTransformation, config: TradeoffConfig,
+    params: PyTree, rest: PyTree, opt_state: PyTree, sample: TradeoffSample, detector_params: PyTree,
+    weights: Float[Array, " 2"], *, model: FilterModel, detector: DetectorModel,
+    optimizer: optax.GradientTransformation, config: TradeoffConfig,
 ) -> tuple[PyTree, PyTree, dict[str, Array]]:
-    """One Adam step on ``L`` (module docstring); returns new params, optimiser state and the losses.
+    """One optimiser step on ``L`` (module docstring); returns new params, optimiser state and the losses.
 
     ``params``: the generators' ``nnx.Param`` leaves; ``rest``: the other state (spectral-norm
-    vectors), held fixed. Pure: jit it with the keyword arguments bound."""
+    vectors), held fixed; ``weights``: ``(λ_p, λ_a)`` (:func:`loss_weights`). ``config`` gives the
+    rest, and ``config.accuracy_weight == 0`` leaves the alignment out of the program (the accuracy
+    term is then 0 whatever ``weights[1]``). Pure: jit it with the keyword arguments bound."""
     s = sample
+    w_priv, w_acc = weights[0], weights[1]
 
     def filt(p: PyTree) -> tuple[Array, Array]:
         state = nnx.merge_state(p, rest)
@@ -183,23 +196,31 @@ def tradeoff_step(
         ok = jnp.isfinite(l_acc) & jnp.all(jnp.isfinite(g_acc_t)) & jnp.all(jnp.isfinite(g_acc_r))
     else:  # λ_a = 0: no alignment at all
         l_acc, g_acc_t, g_acc_r, ok = jnp.zeros((), y_t.dtype), jnp.zeros_like(y_t), jnp.zeros_like(y_r), jnp.asarray(True)
-    w_acc = jnp.where(ok, config.accuracy_weight, 0.0)
-    cot_t = g_fid + config.privacy_weight * g_priv + w_acc * jnp.where(ok, g_acc_t, 0.0)
+    w_acc = jnp.where(ok, w_acc, 0.0)
+    cot_t = g_fid + w_priv * g_priv + w_acc * jnp.where(ok, g_acc_t, 0.0)
     cot_r = w_acc * jnp.where(ok, g_acc_r, 0.0)
     (grads,) = pull((cot_t, cot_r))
     updates, opt_state = optimizer.update(grads, opt_state, params)
     params = optax.apply_updates(params, updates)
-    total = l_fid + config.privacy_weight * l_priv + w_acc * jnp.where(ok, l_acc, 0.0)
+    total = l_fid + w_priv * l_priv + w_acc * jnp.where(ok, l_acc, 0.0)
     return params, opt_state, {"loss": total, "fidelity": l_fid, "privacy": l_priv,
                                "accuracy": l_acc, "acc_skipped": (~ok).astype(jnp.float32)}
 
 
-@functools.lru_cache(maxsize=8)
 def _compiled_step(model: FilterModel, detector: DetectorModel, config: TradeoffConfig) -> tuple[Any, Any]:
-    """Adam and the jitted :func:`tradeoff_step`, once per (model, detector, config) in a process."""
+    """Adam and the jitted :func:`tradeoff_step`, once per program in a process: configs that differ
+    only in the weights' values, the data or the schedule share it."""
+    program = TradeoffConfig(privacy_weight=0.0, accuracy_weight=float(config.accuracy_weight != 0),
+                             learning_rate=config.learning_rate, privacy_temperature=config.privacy_temperature,
+                             detector_input_hw=config.detector_input_hw, alignment=config.alignment)
+    return _step_program(model, detector, program)
+
+
+@functools.lru_cache(maxsize=8)
+def _step_program(model: FilterModel, detector: DetectorModel, config: TradeoffConfig) -> tuple[Any, Any]:
     optimizer = optax.adam(config.learning_rate)
-    return optimizer, jax.jit(lambda p, r, o, smp, dp: tradeoff_step(p, r, o, smp, dp, model=model, detector=detector,
-                                                                     optimizer=optimizer, config=config))
+    return optimizer, jax.jit(lambda p, r, o, smp, dp, w: tradeoff_step(
+        p, r, o, smp, dp, w, model=model, detector=detector, optimizer=optimizer, config=config))
 
 
 def train_tradeoff(
@@ -221,6 +242,7 @@ def train_tradeoff(
     model, state = FilterModel.split(inpainter)
     params, rest = nnx.split_state(state, nnx.Param, ...)
     optimizer, step_fn = _compiled_step(model, detector, config)
+    weights = loss_weights(config)
     opt_state = optimizer.init(params)
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
@@ -244,7 +266,7 @@ def train_tradeoff(
     for step in bar:
         sample = next(data)
         t0 = time.perf_counter()
-        params, opt_state, logs = step_fn(params, rest, opt_state, sample, detector_params)
+        params, opt_state, logs = step_fn(params, rest, opt_state, sample, detector_params, weights)
         logs = {k: float(v) for k, v in logs.items()}
         dt = time.perf_counter() - t0
         if not all(np.isfinite(v) for k, v in logs.items() if k != "accuracy"):
