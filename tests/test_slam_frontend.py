@@ -12,6 +12,7 @@ from privslam_jax.slam.frontend import (
     extract_orb,
     hamming_pairs,
     match_descriptors,
+    _sad_refine,
     rotation_consistent,
     search_by_projection,
     stereo_depths,
@@ -159,6 +160,46 @@ def test_stereo_depth_of_a_shifted_texture():
     assert ok.sum() > 0.3 * len(fl)
     d = fx * b / z[ok]
     assert np.median(np.abs(d - disparity)) < 0.25
+
+
+def _sad_reference(left, right, ul, v, ur, half=5, span=5):
+    """``_sad_refine`` as plain loops in float64, one keypoint and one shift at a time."""
+    h, w = left.shape
+    out, good = ur.astype(np.float64).copy(), np.zeros(ul.size, bool)
+    for i, (a, b, c) in enumerate(zip(ul, v, ur)):
+        ui, vi, uri = (int(np.rint(x)) for x in (a, b, c))
+        if not (half <= vi < h - half and half <= ui < w - half and half + span <= uri < w - half - span):
+            continue
+        lp = left[vi - half:vi + half + 1, ui - half:ui + half + 1].astype(np.float64)
+        lp -= lp[half, half]
+        sad = []
+        for s in range(-span, span + 1):
+            rp = right[vi - half:vi + half + 1, uri + s - half:uri + s + half + 1].astype(np.float64)
+            sad.append(np.abs(rp - rp[half, half] - lp).sum())
+        k = int(np.argmin(sad))
+        delta = 0.0
+        if 0 < k < 2 * span:
+            den = 2.0 * (sad[k - 1] + sad[k + 1] - 2.0 * sad[k])
+            delta = (sad[k - 1] - sad[k + 1]) / den if abs(den) > 1e-9 else 0.0
+            good[i] = abs(delta) <= 1.0
+        out[i] = uri + k - span + (delta if good[i] else 0.0)
+    return out, good
+
+
+def test_sub_pixel_stereo_search_matches_a_plain_loop():
+    rng = np.random.default_rng(4)
+    left = cv2.GaussianBlur(rng.integers(0, 256, (60, 120)).astype(np.uint8), (0, 0), 1.0)
+    right = np.roll(left, -6, axis=1)
+    n = 300  # in the middle, at the borders and outside
+    ul, v = rng.uniform(-3, 123, n), rng.uniform(-3, 63, n)
+    ur = ul - 6 + rng.uniform(-4, 4, n)
+    out, good = _sad_refine(left, right, ul, v, ur)
+    ref_out, ref_good = _sad_reference(left, right, ul, v, ur)
+    np.testing.assert_array_equal(good, ref_good)
+    assert 100 < good.sum() < n
+    np.testing.assert_allclose(out, ref_out, rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="uint8"):
+        stereo_depths(left.astype(np.float32), right, *(extract_orb(left, OrbConfig()),) * 2, 100.0, 0.5)
 
 
 def test_orb_grid_distribution_on_kitti(shared):

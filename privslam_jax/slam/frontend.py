@@ -310,10 +310,13 @@ def search_by_projection(
 
 def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarray, ur: np.ndarray,
                 half: int = 5, span: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel right ``u`` by SAD over ``(2·half+1)²`` patches at offsets ``±span`` + parabola."""
+    """Sub-pixel right ``u`` by SAD over ``(2·half+1)²`` patches at offsets ``±span`` + parabola.
+
+    Patches are read through a strided window view of the images (no index grid per pixel) and
+    compared in integers: each patch minus its centre pixel, absolute differences summed exactly
+    (at most 121·510), so the float32 SADs are those of a float computation, bit for bit."""
     h, w = left.shape
     n = ul.size
-    off = np.arange(-half, half + 1)
     ui, vi, uri = np.rint(ul).astype(np.int64), np.rint(v).astype(np.int64), np.rint(ur).astype(np.int64)
     ok = (vi - half >= 0) & (vi + half < h) & (ui - half >= 0) & (ui + half < w)
     ok &= (uri - half - span >= 0) & (uri + half + span < w)
@@ -321,16 +324,15 @@ def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarr
     if not ok.any():
         return out, ok
     idx = np.flatnonzero(ok)
-    L = left.astype(np.float32)
-    R = right.astype(np.float32)
-    rows = vi[idx, None, None] + off[None, :, None]
-    lp = L[rows, ui[idx, None, None] + off[None, None, :]]  # (n, P, P)
+    size = 2 * half + 1
+    left_windows = np.lib.stride_tricks.sliding_window_view(left, (size, size))  # [y, x] = patch at (y, x)
+    right_windows = np.lib.stride_tricks.sliding_window_view(right, (size, size))
+    lp = left_windows[vi[idx] - half, ui[idx] - half].astype(np.int16)  # (n, P, P)
     lp = lp - lp[:, half:half + 1, half:half + 1]
     shifts = np.arange(-span, span + 1)
-    cols = uri[idx, None, None, None] + shifts[None, :, None, None] + off[None, None, None, :]
-    rp = R[rows[:, None], cols]  # (n, S, P, P)
+    rp = right_windows[vi[idx, None] - half, uri[idx, None] + shifts[None, :] - half].astype(np.int16)  # (n, S, P, P)
     rp = rp - rp[:, :, half:half + 1, half:half + 1]
-    sad = np.abs(rp - lp[:, None]).sum(axis=(2, 3))  # (n, S)
+    sad = np.abs(rp - lp[:, None]).sum(axis=(2, 3), dtype=np.int32).astype(np.float32)  # (n, S)
     b = np.argmin(sad, axis=1)
     inner = (b > 0) & (b < 2 * span)
     bc = np.clip(b, 1, 2 * span - 1)
@@ -348,13 +350,17 @@ def stereo_depths(
     left: np.ndarray, right: np.ndarray, fl: Features, fr: Features, fx: float, baseline: float,
     scale_factor: float = 1.2,
 ) -> np.ndarray:
-    """Depth of each left keypoint from a rectified right image (``nan`` where unmatched).
+    """Depth of each left keypoint from a rectified right image (``nan`` where unmatched);
+    ``left``/``right``: uint8 grey images.
 
     Candidates: right keypoints within ±2·scale^octave rows, octave ±1, ``u_r ∈ (u_l − fx, u_l]``;
     the best Hamming distance must be ≤ (TH_HIGH+TH_LOW)/2; then an 11×11 SAD search over ±5 px
     with a parabola fit gives sub-pixel ``u_r`` (matches whose SAD minimum lies on the search
     border are dropped).  Departure: SAD on level 0, not on the keypoint's pyramid level.
     """
+    if left.dtype != np.uint8 or right.dtype != np.uint8 or left.shape != right.shape or left.ndim != 2:
+        raise ValueError(f"stereo_depths takes two uint8 grey images of one size, got {left.dtype} {left.shape} "
+                         f"and {right.dtype} {right.shape}")
     n = len(fl)
     depth = np.full(n, np.nan)
     if n == 0 or len(fr) == 0:
@@ -368,7 +374,7 @@ def stereo_depths(
     hi = np.searchsorted(rs, np.rint(fl.uv[:, 1]).astype(np.int64) + band, "right")
     lens = hi - lo
     qi = np.repeat(np.arange(n), lens)
-    ki = order[np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)])] if lens.sum() else np.zeros(0, np.int64)
+    ki = order[np.repeat(lo - np.cumsum(lens) + lens, lens) + np.arange(lens.sum())]  # order[lo_q .. hi_q) per q
     disp = fl.uv[qi, 0] - fr.uv[ki, 0]
     ok = (disp >= 0) & (disp < fx) & (np.abs(fl.octave[qi] - fr.octave[ki]) <= 1)
     qi, ki = qi[ok], ki[ok]
