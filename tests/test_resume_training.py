@@ -132,9 +132,20 @@ def _assert_same_npz(a: Path, b: Path) -> None:
 
 def _yolo_dataset(root: Path, n: int = 8, size: int = 64) -> None:
     """``n`` flat images with two coloured boxes each (class 0 red, 1 green), YOLO layout."""
-    from test_detect_train import _make_dataset
-
-    _make_dataset(root, n=n, size=size, seed=0)
+    rng = np.random.default_rng(0)
+    (root / "images" / "train").mkdir(parents=True)
+    (root / "labels" / "train").mkdir(parents=True)
+    for i in range(n):
+        img = np.full((size, size, 3), 60, np.uint8)
+        lines = []
+        for _ in range(2):
+            c = int(rng.integers(0, 2))
+            w, h = (int(v) for v in rng.integers(12, 30, 2))
+            x, y = int(rng.integers(0, size - w)), int(rng.integers(0, size - h))
+            img[y : y + h, x : x + w] = (220, 40, 40) if c == 0 else (40, 220, 40)
+            lines.append(f"{c} {(x + w / 2) / size:.6f} {(y + h / 2) / size:.6f} {w / size:.6f} {h / size:.6f}")
+        cv2.imwrite(str(root / "images" / "train" / f"{i:03d}.png"), img[..., ::-1])
+        (root / "labels" / "train" / f"{i:03d}.txt").write_text("\n".join(lines) + "\n")
 
 
 def test_detector_killed_between_checkpoints_resumes_to_identical_weights(tmp_path):
@@ -153,6 +164,7 @@ def test_detector_killed_between_checkpoints_resumes_to_identical_weights(tmp_pa
         r.kill_when(killed, lambda: 4 in _finalized(ckpt))
         assert _finalized(ckpt) == [4]
         assert not (tmp_path / "killed" / "detector.npz").exists()
+        at_4 = _restore(ckpt / "4")
         resumed = r.start("resumed", command("killed"))  # the same command again
         full = r.start("full", command("full"))  # uninterrupted, from the compilation cache the killed run filled
         r.wait_ok(resumed)
@@ -161,8 +173,11 @@ def test_detector_killed_between_checkpoints_resumes_to_identical_weights(tmp_pa
     assert first is not None and first.group(1) == "4", "the resumed run did not start from checkpoint 4"
     assert "after 12 steps" in (tmp_path / "resumed.out").read_text()
     assert _finalized(tmp_path / "full" / "ckpt")[-1] == _finalized(ckpt)[-1] == 12
-    _assert_same_leaves(_restore(tmp_path / "full" / "ckpt" / "12"), _restore(ckpt / "12"), min_leaves=500)
+    at_12 = _restore(ckpt / "12")
+    _assert_same_leaves(_restore(tmp_path / "full" / "ckpt" / "12"), at_12, min_leaves=500)
     _assert_same_npz(tmp_path / "full" / "detector.npz", tmp_path / "killed" / "detector.npz")
+    # steps 5-12 trained: the weights moved
+    assert sum(not np.array_equal(x, y) for (k, x), (_, y) in zip(at_4, at_12, strict=True) if "kernel" in k) > 50
     assert len(_programs(tmp_path / "xla_cache", "jit_step_fn")) == 1  # one compiled train step for all runs
 
 
