@@ -1,6 +1,9 @@
-"""Per-stage SLAM timings on KITTI seq1 (1226×370, monocular), after compilation.
+"""Per-stage SLAM timings at 1226×370 after compilation: monocular on KITTI seq1, or stereo.
 
-Command:  python benchmarks/bench_slam.py [--frames 51]
+Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo]
+
+``--stereo`` runs stereo SLAM on a synthetic stereo street at KITTI's size (1226×370, seed 0;
+``seq1`` in ``../shared`` has no right images), so that the stereo matching stage is timed too.
 
 Runs the sequence twice in one process: the first run compiles the jitted JAX solvers (pose
 refinement, local BA; reported as the first run's extra time), the second is timed.  Prints the
@@ -30,27 +33,37 @@ import numpy as np  # noqa: E402
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=51)
+    p.add_argument("--stereo", action="store_true", help="stereo SLAM on a synthetic 1226x370 stereo street")
     a = p.parse_args()
-    from privslam_jax._shared import shared_dir
-    from privslam_jax.data.kitti import KittiSequence
     from privslam_jax.slam.frontend import to_gray_u8
     from privslam_jax.slam.system import SlamConfig, run_slam
 
-    shared = shared_dir()
-    if shared is None:
-        raise SystemExit("needs ../shared (KITTI seq1)")
-    seq = KittiSequence(shared / "data/kitti_odometry/sequences/seq1", grey=True)
-    n = min(a.frames, len(seq))
-    images = [to_gray_u8(seq.image(i)) for i in range(n)]
+    if a.stereo:
+        from privslam_jax.data.synthetic import SynthConfig, make_sequence
+
+        world = make_sequence(SynthConfig(width=1226, height=370, num_frames=a.frames, stereo=True, seed=0))
+        n, camera, name, config = a.frames, world.camera, "synthetic stereo street", SlamConfig(mode="stereo")
+        images = [(to_gray_u8(f.image), to_gray_u8(f.image_right)) for f in world]
+    else:
+        from privslam_jax._shared import shared_dir
+        from privslam_jax.data.kitti import KittiSequence
+
+        shared = shared_dir()
+        if shared is None:
+            raise SystemExit("needs ../shared (KITTI seq1)")
+        seq = KittiSequence(shared / "data/kitti_odometry/sequences/seq1", grey=True)
+        n, camera, name, config = min(a.frames, len(seq)), seq.camera, "KITTI seq1", SlamConfig()
+        images = [to_gray_u8(seq.image(i)) for i in range(n)]
     t0 = time.perf_counter()
-    run_slam(images, seq.camera, SlamConfig())
+    run_slam(images, camera, config)
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = run_slam(images, seq.camera, SlamConfig())
+    res = run_slam(images, camera, config)
     second = time.perf_counter() - t0
     orb = cv2.ORB_create(nfeatures=2000, scaleFactor=1.2, nlevels=8)
     ref = []
     for img in images:
+        img = img[0] if a.stereo else img
         t = time.perf_counter()
         orb.detectAndCompute(img, None)
         ref.append(time.perf_counter() - t)
@@ -58,7 +71,7 @@ def main() -> None:
     tracking = tm["total"] - np.nan_to_num(tm.get("mapping", np.zeros(n)))
     rows = [(k, v) for k, v in tm.items()] + [("tracking (total − mapping)", tracking),
                                               ("reference: cv2 ORB detectAndCompute 2000", np.array(ref))]
-    print(f"KITTI seq1, {n} frames, {res.tracked.sum()} tracked, {len(res.keyframe_indices)} keyframes")
+    print(f"{name} ({config.mode}), {n} frames, {res.tracked.sum()} tracked, {len(res.keyframe_indices)} keyframes")
     print(f"{'stage':45s} {'runs':>5s} {'median ms':>10s} {'mean ms':>10s}")
     for k, v in rows:
         v = np.asarray(v)
