@@ -51,6 +51,7 @@ from privslam_jax.detect.yolov8 import (
     YOLOv8,
     YOLOv8Config,
     _upsample2,
+    abstract_model,
     host_init,
 )
 
@@ -215,7 +216,7 @@ class YOLO11(YOLOv8):
 
 def abstract_yolo11(config: YOLO11Config = YOLO11Config()) -> YOLO11:
     """A :class:`YOLO11` whose variables are shape placeholders (no computation); fill before use."""
-    return nnx.eval_shape(lambda: YOLO11(config, rngs=nnx.Rngs(0)))
+    return abstract_model(YOLO11, config)
 
 
 def init_yolo11(config: YOLO11Config = YOLO11Config(), seed: int = 0) -> YOLO11:
