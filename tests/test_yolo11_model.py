@@ -72,6 +72,10 @@ def _randomise_bn(model, seed: int) -> None:
             node.bn.bias.set_value(jnp.asarray(rng.normal(0, 0.3, c), jnp.float32))
 
 
+_forward = nnx.jit(lambda model, x: model(x))
+"""A model's forward, one compiled program per model structure (eager NNX dispatches op by op)."""
+
+
 @pytest.fixture(scope="module")
 def tiny():
     model = init_yolo11(YOLO11Config(num_classes=3, scale="tiny"), seed=1)
@@ -134,8 +138,8 @@ def test_fused_batchnorm_is_the_same_function(tiny):
     assert all(n.bn is None for n in convs) and any(n.conv.feature_group_count > 1 for n in convs)
     assert any(not n.act for n in convs)
     x = jnp.asarray(np.random.default_rng(3).random((1, 64, 96, 3), np.float32))
-    ref = jnp.concatenate([f.reshape(-1) for f in tiny(x)])
-    out = jnp.concatenate([f.reshape(-1) for f in fused(x)])
+    ref = jnp.concatenate([f.reshape(-1) for f in _forward(tiny, x)])
+    out = jnp.concatenate([f.reshape(-1) for f in _forward(fused, x)])
     np.testing.assert_allclose(np.asarray(out), np.asarray(ref), rtol=1e-4, atol=1e-4 * float(jnp.abs(ref).max()))
 
 
@@ -147,7 +151,7 @@ def test_checkpoint_round_trip_records_arch(tiny, tmp_path):
     back, names = load_detector(path)
     assert isinstance(back, YOLO11) and back.config == tiny.config and names == {0: "a", 1: "b", 2: "c"}
     x = jnp.asarray(np.random.default_rng(4).random((1, 64, 64, 3), np.float32))
-    for a, b in zip(back(x), tiny(x)):
+    for a, b in zip(_forward(back, x), _forward(tiny, x)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     # the Detector (predict.py) runs a YOLO11 unchanged
     det = Detector(back, DetectorConfig(imgsz=64, conf=0.0))
