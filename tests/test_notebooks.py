@@ -1,13 +1,15 @@
 """Execute every notebook (jupytext ``.py`` percent sources) on tiny settings and check what it shows.
 
-Each ``notebooks/*.py`` is converted with jupytext and run once per module by nbclient in a
-``python3`` kernel with ``PRIVSLAM_NB_TINY=1``.  A first injected cell turns warnings raised by
-privslam_jax code into errors inside the kernel; jupyter's own DeprecationWarnings in this process
-are tolerated by a local filter.  Beyond "no cell raised", every notebook has an entry in
-:data:`EXPECTED`: the lines it must print (regular expressions, with the values the tiny settings
-imply) and the figures it must show.
+Each ``notebooks/NN_*.py`` is run once per module by ``notebooks/render.py``'s ``execute`` (jupytext,
+then nbclient in a ``python3`` kernel) with ``PRIVSLAM_NB_TINY=1``.  A first injected cell turns
+warnings raised by privslam_jax code into errors inside the kernel; jupyter's own
+DeprecationWarnings in this process are tolerated by a local filter.  Beyond "no cell raised",
+every notebook has an entry in :data:`EXPECTED`: the lines it must print (regular expressions, with
+the values the tiny settings imply) and the figures it must show; and its rendered copy
+(``render.py``'s ``export``) holds them.
 """
 
+import importlib.util
 import os
 import re
 import warnings
@@ -17,7 +19,10 @@ import pytest
 
 from privslam_jax._shared import shared_dir
 
-NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.py"))
+_spec = importlib.util.spec_from_file_location("render", Path(__file__).resolve().parents[1] / "notebooks" / "render.py")
+RENDER = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(RENDER)
+NOTEBOOKS = RENDER.NOTEBOOKS
 STRICT_CELL = 'import warnings\nwarnings.filterwarnings("error", module=r"privslam_jax(\\..*)?$")'
 PARETO_JSON = Path(__file__).resolve().parents[1] / "results" / "pareto_tradeoff.json"
 HAS_KITTI = shared_dir() is not None and (shared_dir() / "data/kitti_odometry/sequences/seq1").is_dir()
@@ -112,23 +117,17 @@ EXPECTED = {
 
 @pytest.fixture(scope="module", params=NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def executed(request):
-    """``(path, executed notebook)``, run once per notebook."""
-    jupytext = pytest.importorskip("jupytext")
-    nbclient = pytest.importorskip("nbclient")
-    nbformat = pytest.importorskip("nbformat")
+    """``(path, executed notebook)``, run once per notebook by ``notebooks/render.py``'s ``execute``
+    (tiny settings, ``../shared`` visible when present); a cell that raises or writes to stderr fails it."""
+    for module in ("jupytext", "nbclient", "nbformat"):
+        pytest.importorskip(module)
     path = request.param
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("PRIVSLAM_NB_TINY", "1")
-        nb = jupytext.read(path)
-        nb.cells.insert(0, nbformat.v4.new_code_cell(STRICT_CELL))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            warnings.simplefilter("ignore", PendingDeprecationWarning)
-            client = nbclient.NotebookClient(
-                nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
-            )
-            client.execute()  # raises CellExecutionError (with the traceback) on any failing cell
-        assert os.environ["PRIVSLAM_NB_TINY"] == "1"
+    before = os.environ.get("PRIVSLAM_NB_TINY")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        nb = RENDER.execute(path, tiny=True, shared=True, prelude=STRICT_CELL, timeout=900)
+    assert os.environ.get("PRIVSLAM_NB_TINY") == before  # the kernel's settings did not leak into this process
     return path, nb
 
 
@@ -162,3 +161,23 @@ def test_notebook_shows_its_figures(executed):
     path, nb = executed
     figures = [o for o in _outputs(nb) if o.get("output_type") == "display_data" and "image/png" in o.get("data", {})]
     assert len(figures) == EXPECTED[path.stem]["figures"], f"{path.name} showed {len(figures)} figures"
+
+
+def test_rendered_copy_holds_the_code_outputs_and_figures(executed, tmp_path):
+    """``notebooks/render.py``'s export: markdown with every code cell, every printed line and a link
+    to every figure, each figure a PNG file beside it; a second export replaces the first."""
+    pytest.importorskip("nbconvert")
+    path, nb = executed
+    (tmp_path / f"{path.stem}_files").mkdir()
+    (tmp_path / f"{path.stem}_files" / "stale.png").write_bytes(b"old")
+    md = RENDER.export(nb, path.stem, tmp_path)
+    text = md.read_text()
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            assert cell.source.strip().splitlines()[0] in text
+    for line in _stream(nb, "stdout").splitlines():
+        assert line.strip() in text
+    figures = sorted((tmp_path / f"{path.stem}_files").iterdir())
+    assert len(figures) == EXPECTED[path.stem]["figures"]
+    for f in figures:
+        assert f.suffix == ".png" and f.read_bytes().startswith(b"\x89PNG") and f"({path.stem}_files/{f.name})" in text
