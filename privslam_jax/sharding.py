@@ -11,17 +11,71 @@ order of the floating-point sums.
 
 On a CPU host, ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set before JAX starts) gives
 ``N`` devices to test with.
+
+Several processes (hosts) — :func:`initialize_distributed` first — form one mesh over every process's
+devices, as in JAX's multi-controller model: each process runs the same program, loads only its own
+rows of every global batch (:func:`local_rows`; :func:`shard_batch` assembles the global array from
+them with ``jax.make_array_from_process_local_data``), and reads replicated results back with
+:func:`to_host`.  On CPU the cross-process collectives run over gloo.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import os
+
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-__all__ = ["data_mesh", "devices_problem", "replicate", "shard_batch"]
+__all__ = ["data_mesh", "devices_problem", "initialize_distributed", "local_rows", "replicate", "shard_batch",
+           "to_host"]
+
+
+def initialize_distributed(coordinator: str | None = None, num_processes: int | None = None,
+                           process_id: int | None = None) -> None:
+    """Join a multi-process run (``jax.distributed.initialize``) before JAX does anything else.
+
+    Arguments default to the environment: ``JAX_COORDINATOR_ADDRESS`` (``host:port`` of process 0),
+    ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``; left unset there too, JAX detects a cluster it knows
+    (SLURM, Open MPI, …).  On CPU the collectives run over gloo.
+    """
+    env = os.environ
+    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
+    if num_processes is None and env.get("JAX_NUM_PROCESSES"):
+        num_processes = int(env["JAX_NUM_PROCESSES"])
+    if process_id is None and env.get("JAX_PROCESS_ID"):
+        process_id = int(env["JAX_PROCESS_ID"])
+    if num_processes is not None and process_id is not None and not 0 <= process_id < num_processes:
+        raise ValueError(f"process id {process_id} is not in [0, {num_processes})")
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes, process_id=process_id)
+
+
+def local_rows(batch_size: int) -> slice:
+    """The rows of a global batch of ``batch_size`` that this process loads (all of them in a
+    single-process run): process ``p`` of ``P`` holds the ``p``-th contiguous block, the rows its
+    devices hold in :func:`data_mesh`'s mesh."""
+    n, p = jax.process_count(), jax.process_index()
+    if batch_size % n:
+        raise ValueError(f"a batch of {batch_size} cannot be split across {n} processes")
+    k = batch_size // n
+    return slice(p * k, (p + 1) * k)
+
+
+def to_host(tree: Any) -> Any:
+    """numpy copies of every leaf; a replicated array of a multi-process run is read from this
+    process's own copy (``np.asarray`` refuses arrays with shards on other processes)."""
+
+    def get(x: Any) -> np.ndarray:
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:
+            if not x.sharding.is_fully_replicated:
+                raise ValueError(f"an array of shape {x.shape} is split across processes: gather it first")
+            return np.asarray(x.addressable_data(0))
+        return np.asarray(x)
+
+    return jax.tree.map(get, tree)
 
 
 def devices_problem(devices: int, batch_size: int) -> str | None:
@@ -49,21 +103,32 @@ def data_mesh(devices: int | None = None) -> Mesh | None:
 
 
 def replicate(tree: Any, mesh: Mesh | None) -> Any:
-    """Every leaf of ``tree`` copied onto each device of ``mesh`` (unchanged without a mesh)."""
-    return tree if mesh is None else jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
+    """Every leaf of ``tree`` copied onto each device of ``mesh`` (unchanged without a mesh); in a
+    multi-process run every process passes the same values."""
+    if mesh is None:
+        return tree
+    sharding = NamedSharding(mesh, PartitionSpec())
+    if jax.process_count() == 1:
+        return jax.device_put(tree, sharding)
+    return jax.tree.map(lambda x: jax.make_array_from_process_local_data(sharding, np.asarray(x)), tree)
 
 
 def shard_batch(tree: Any, mesh: Mesh | None) -> Any:
     """Every leaf of ``tree`` split along its leading (batch) axis across ``mesh``'s devices.
 
-    Raises ``ValueError`` when a batch does not divide evenly (choose a batch size that is a multiple
-    of the device count).
+    In a multi-process run ``tree`` holds this process's rows only (:func:`local_rows`) and the
+    result is the global batch.  Raises ``ValueError`` when a batch does not divide evenly (choose
+    a batch size that is a multiple of the device count).
     """
     if mesh is None:
         return tree
-    n = mesh.devices.size
+    local = jax.process_count() > 1
+    n = sum(d.process_index == jax.process_index() for d in mesh.devices.flat) if local else mesh.devices.size
     for leaf in jax.tree.leaves(tree):
         if np.ndim(leaf) == 0 or np.shape(leaf)[0] % n:
             raise ValueError(f"a batch of shape {np.shape(leaf)} cannot be split across {n} devices: "
                              f"the batch size must be a multiple of the device count")
-    return jax.device_put(tree, NamedSharding(mesh, PartitionSpec("data")))
+    sharding = NamedSharding(mesh, PartitionSpec("data"))
+    if local:
+        return jax.tree.map(lambda x: jax.make_array_from_process_local_data(sharding, np.asarray(x)), tree)
+    return jax.device_put(tree, sharding)

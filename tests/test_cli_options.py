@@ -161,6 +161,8 @@ TRAIN_CASES = [
     ("detector", [*DETECTOR, "--devices", "0"], "--devices"),
     ("detector", [*DETECTOR, "--batch", "3", "--devices", "2"], "--devices"),
     ("detector", [*DETECTOR, "--batch", "4096", "--devices", "4096"], "--devices"),
+    ("detector", [*DETECTOR, "--process-id", "1"], "--distributed"),
+    ("detector", [*DETECTOR, "--num-processes", "0"], "--num-processes"),
     ("detector", [*DETECTOR, "--epochs", "0"], "--epochs"),
     ("detector", [*DETECTOR, "--lr0", "nan"], "--lr0"),
     ("detector", [*DETECTOR, "--lr0", "-0.01"], "--lr0"),

@@ -9,6 +9,16 @@ re-running with the same ``--ckpt-dir`` resumes), then writes the EMA weights as
 prints P, R, mAP50 and mAP50-95 on it (ultralytics val settings; "rect" letterbox when
 ``--imgh`` is given).
 
+Data parallelism: ``--devices N`` splits each batch over ``N`` devices of this process;
+``--distributed`` runs one process per host or worker (start each with the same arguments plus
+``--process-id``; ``--coordinator host:port`` of process 0, ``--num-processes``, or the environment
+variables ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES``, ``JAX_PROCESS_ID``): each process loads its
+own rows of every batch, the checkpoints are shared (a run resumes with another process count) and
+process 0 writes ``--out``.  On two processes of one machine::
+
+    python train/detector.py ... --distributed --coordinator 127.0.0.1:12355 --num-processes 2 --process-id 0 &
+    python train/detector.py ... --distributed --coordinator 127.0.0.1:12355 --num-processes 2 --process-id 1
+
 ``--synth-train-seeds A-B`` / ``--synth-val-seeds C-D`` first write the synthetic world as a YOLO
 dataset into ``--data`` (splits ``train`` / ``val``, skipped when the split already exists;
 :func:`privslam_jax.data.yolo.export_synthetic_yolo`, label rule
@@ -77,8 +87,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--domain", choices=("synthetic", "real", "unknown"), default="unknown",
                    help="what the training data was, recorded in the checkpoint (real: any real frames in it)")
     p.add_argument("--coco-names", action="store_true", help="store COCO class names in the checkpoint")
-    p.add_argument("--devices", type=positive_int, default=1,
-                   help="data-parallel over this many devices (the batch split, the state replicated; default 1; "
+    p.add_argument("--distributed", action="store_true",
+                   help="one of several processes (jax.distributed; see the module docstring)")
+    p.add_argument("--coordinator", default=None, help="with --distributed: host:port of process 0")
+    p.add_argument("--num-processes", type=positive_int, default=None, help="with --distributed: the process count")
+    p.add_argument("--process-id", type=nonnegative_int, default=None, help="with --distributed: this process's id")
+    p.add_argument("--devices", type=positive_int, default=None,
+                   help="data-parallel over this many devices (the batch split, the state replicated; default 1, with --distributed every process's devices; "
                         "on a CPU host XLA_FLAGS=--xla_force_host_platform_device_count=N gives N)")
     p.add_argument("--synth-train-seeds", type=seed_list, default=None,
                    help="A-B: export synthetic seeds A..B as the train split first")
@@ -89,14 +104,23 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.imgh is not None and a.imgh > a.imgsz:
         p.error(f"argument --imgh: must be at most --imgsz ({a.imgsz}), got {a.imgh}")
-    from privslam_jax.sharding import devices_problem
+    if not a.distributed and (a.coordinator or a.num_processes or a.process_id is not None):
+        p.error("--coordinator, --num-processes and --process-id need --distributed")
+    import jax
 
+    from privslam_jax.sharding import devices_problem, initialize_distributed
+
+    if a.distributed:
+        initialize_distributed(a.coordinator, a.num_processes, a.process_id)
+    if a.devices is None:
+        a.devices = jax.device_count() if a.distributed else 1
     if problem := devices_problem(a.devices, a.batch):
         p.error(f"argument --devices: {problem}")
+    primary = jax.process_index() == 0
     if a.coco_names and a.num_classes > len(COCO_NAMES_8):
         p.error(f"argument --coco-names: knows the first {len(COCO_NAMES_8)} COCO names, got --num-classes {a.num_classes}")
     for split, seeds in (("train", a.synth_train_seeds), ("val", a.synth_val_seeds)):
-        if seeds and not (Path(a.data) / "images" / split).is_dir():
+        if seeds and primary and not (Path(a.data) / "images" / split).is_dir():
             from privslam_jax.data.yolo import export_synthetic_yolo
 
             from privslam_jax.data.synthetic import parse_seeds
@@ -104,12 +128,18 @@ def main(argv: list[str] | None = None) -> int:
             n = export_synthetic_yolo(a.data, split, parse_seeds(seeds), a.synth_frames, a.synth_stride,
                                      randomize_camera=a.synth_randomize_camera)
             print(f"wrote {n} synthetic frames (seeds {seeds}) to {a.data}/images/{split}")
+    if a.distributed:  # the other processes wait for process 0's dataset
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices("dataset written")
     cfg = TrainConfig(data=a.data, num_classes=a.num_classes, split=a.split, scale=a.scale, imgsz=a.imgsz, imgh=a.imgh,
                       batch_size=a.batch, epochs=a.epochs, lr0=a.lr0, lrf=a.lrf, cos_lr=a.cos_lr, momentum=a.momentum,
                       warmup_epochs=a.warmup_epochs, warmup_bias_lr=a.warmup_bias_lr, optimizer=a.optimizer, seed=a.seed, ckpt_dir=a.ckpt_dir,
                       ckpt_every=a.ckpt_every, max_steps=a.max_steps,
                       domain_rand=a.domain_rand, init_weights=a.init_weights, devices=a.devices)
-    result = train(cfg)
+    result = train(cfg, progress=primary)
+    if not primary:
+        return 0
     names = {i: COCO_NAMES_8[i] for i in range(a.num_classes)} if a.coco_names else None
     save_checkpoint(result.model, a.out, names, domain=a.domain)
     print(f"wrote {a.out} after {result.step} steps")

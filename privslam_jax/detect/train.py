@@ -299,10 +299,14 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
     """Train (or resume training) a YOLOv8; returns the EMA model in eval mode.
 
     With ``cfg.devices > 1`` every step runs data-parallel (:mod:`privslam_jax.sharding`); a
-    checkpoint written with one device count resumes with another.
+    checkpoint written with one device count resumes with another.  In a multi-process run
+    (:func:`~privslam_jax.sharding.initialize_distributed` first, ``cfg.devices`` counting every
+    process's devices) each process calls this with the same ``cfg``, loads only its own rows of each
+    batch, and gets the same model back; the checkpoints are written once (orbax coordinates the
+    processes).
     """
     from privslam_jax.data.yolo import YoloDataset
-    from privslam_jax.sharding import data_mesh, replicate, shard_batch
+    from privslam_jax.sharding import data_mesh, local_rows, replicate, shard_batch, to_host
 
     mesh = data_mesh(cfg.devices)
     dataset = YoloDataset(cfg.data, cfg.split)
@@ -343,13 +347,15 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
     if key not in _STEP_CACHE:
         _STEP_CACHE[key] = _build_step(graphdef, params, stats, tx, feat_shapes, loss_cfg, cfg.ema_decay)
     step_jit = _STEP_CACHE[key]
-    start = int(state["step"])
+    start = int(to_host(state["step"]))
     history = []
     bar = tqdm(total=total_steps, initial=start, desc="train", unit="step", disable=not progress)
+    rows = local_rows(cfg.batch_size)  # this process's rows of every global batch (all of them in one process)
+
     def batch_of(step: int) -> tuple[np.ndarray, ...]:
         epoch, k = divmod(step, steps_per_epoch)
         order = np.random.default_rng((cfg.seed, epoch)).permutation(n)
-        return load_batch(dataset, order[k * cfg.batch_size : (k + 1) * cfg.batch_size], cfg, epoch)
+        return load_batch(dataset, order[k * cfg.batch_size : (k + 1) * cfg.batch_size][rows], cfg, epoch)
 
     batch = batch_of(start) if start < total_steps else None
     for step in range(start, total_steps):
@@ -359,7 +365,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
         state, losses = step_jit(state, *shard_batch(tuple(map(jnp.asarray, batch)), mesh))
         if step + 1 < total_steps:  # prepare the next batch while the (asynchronous) step runs
             batch = batch_of(step + 1)
-        losses = np.asarray(losses)
+        losses = to_host(losses)
         history.append(losses)
         bar.set_postfix(box=f"{losses[0]:.3f}", cls=f"{losses[1]:.3f}", dfl=f"{losses[2]:.3f}", epoch=epoch)
         bar.update(1)
@@ -370,6 +376,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
     bar.close()
     if mngr is not None:
         mngr.wait_until_finished()
+    if jax.process_count() > 1:  # replicated across processes: this process's copy
+        state = jax.tree.map(jnp.asarray, to_host(state))
     nnx.replace_by_pure_dict(params, state["ema_params"])
     nnx.replace_by_pure_dict(stats, state["ema_stats"])
     out = nnx.merge(graphdef, params, stats)
