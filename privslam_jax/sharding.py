@@ -21,9 +21,8 @@ them with ``jax.make_array_from_process_local_data``), and reads replicated resu
 
 from __future__ import annotations
 
-from typing import Any
-
 import os
+from typing import Any
 
 import jax
 import numpy as np

@@ -163,6 +163,7 @@ TRAIN_CASES = [
     ("detector", [*DETECTOR, "--batch", "4096", "--devices", "4096"], "--devices"),
     ("detector", [*DETECTOR, "--process-id", "1"], "--distributed"),
     ("detector", [*DETECTOR, "--num-processes", "0"], "--num-processes"),
+    ("detector", [*DETECTOR, "--distributed", "--num-processes", "2", "--process-id", "2"], "--distributed"),
     ("detector", [*DETECTOR, "--epochs", "0"], "--epochs"),
     ("detector", [*DETECTOR, "--lr0", "nan"], "--lr0"),
     ("detector", [*DETECTOR, "--lr0", "-0.01"], "--lr0"),

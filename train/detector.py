@@ -111,7 +111,10 @@ def main(argv: list[str] | None = None) -> int:
     from privslam_jax.sharding import devices_problem, initialize_distributed
 
     if a.distributed:
-        initialize_distributed(a.coordinator, a.num_processes, a.process_id)
+        try:
+            initialize_distributed(a.coordinator, a.num_processes, a.process_id)
+        except ValueError as e:
+            p.error(f"argument --distributed: {e}")
     if a.devices is None:
         a.devices = jax.device_count() if a.distributed else 1
     if problem := devices_problem(a.devices, a.batch):

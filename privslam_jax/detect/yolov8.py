@@ -50,8 +50,8 @@ from jaxtyping import Array, Float
 
 from privslam_jax.detect.rgb_stem import rgb_stem
 
-__all__ = ["YOLOv8", "YOLOv8Config", "SCALES", "TORCH_LAYER_NAMES", "count_parameters", "init_yolov8", "abstract_yolov8", "abstract_model",
-           "fuse_batchnorm", "Conv", "DWConv", "Bottleneck", "C2f", "SPPF", "Detect"]
+__all__ = ["YOLOv8", "YOLOv8Config", "SCALES", "TORCH_LAYER_NAMES", "count_parameters", "init_yolov8", "abstract_yolov8",
+           "abstract_model", "fuse_batchnorm", "Conv", "DWConv", "Bottleneck", "C2f", "SPPF", "Detect"]
 
 SCALES: dict[str, tuple[float, float, int]] = {
     "n": (0.33, 0.25, 1024),
