@@ -7,7 +7,7 @@ YOLO dataset) and the EdgeConnect CPU preset (``privslam_jax.inpaint.train``, ``
 stage on random crops) — each configuration runs in its own process (the device count is fixed
 when JAX starts): ``1 device``; ``2 devices`` (``XLA_FLAGS=--xla_force_host_platform_device_count=2``,
 one process, the batch split); ``2 processes`` (``jax.distributed`` on loopback, one device each,
-each loading its own half of every batch; detector only so far).  A process first trains 2 steps
+each loading its own half of every batch).  A process first trains 2 steps
 (compilation), then times ``--steps`` steps of a fresh run on the compiled step, data loading
 included.  Scaling efficiency = images/s ÷ (devices × the 1-device images/s).
 
@@ -139,7 +139,7 @@ def main() -> None:
         a.trainer = a.worker
         _worker(a)
         return
-    configs = {"detector": [(1, 1), (2, 1), (1, 2)], "inpainter": [(1, 1), (2, 1)]}
+    configs = {"detector": [(1, 1), (2, 1), (1, 2)], "inpainter": [(1, 1), (2, 1), (1, 2)]}
     with tempfile.TemporaryDirectory() as tmp:
         _write_dataset(Path(tmp) / "ds", 4 * a.batch, a.detector_imgsz)
         print(f"{a.steps} timed steps, global batch {a.batch}; detector {a.detector_imgsz}² YOLOv8n, "
@@ -155,8 +155,6 @@ def main() -> None:
                                                             else f"{processes} processes, 1 device each")
                 eff = r["images_per_s"] / (r["devices"] * one)
                 print(f"| {trainer} | {name} | {r['devices']} | {r['images_per_s']:.1f} | {eff:.2f} |", flush=True)
-            if trainer == "inpainter":
-                print("| inpainter | 2 processes | — | not implemented yet (train/inpaint.py has no --distributed) | — |")
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ them with ``jax.make_array_from_process_local_data``), and reads replicated resu
 
 from __future__ import annotations
 
+import argparse
 import os
 from typing import Any
 
@@ -28,8 +29,10 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-__all__ = ["data_mesh", "devices_problem", "initialize_distributed", "local_rows", "replicate", "shard_batch",
-           "to_host"]
+from privslam_jax.argtypes import nonnegative_int, positive_int
+
+__all__ = ["add_parallel_arguments", "data_mesh", "devices_problem", "initialize_distributed", "local_part",
+           "local_rows", "replicate", "shard_batch", "start_parallel", "to_host"]
 
 
 def initialize_distributed(coordinator: str | None = None, num_processes: int | None = None,
@@ -72,6 +75,19 @@ def to_host(tree: Any) -> Any:
             if not x.sharding.is_fully_replicated:
                 raise ValueError(f"an array of shape {x.shape} is split across processes: gather it first")
             return np.asarray(x.addressable_data(0))
+        return np.asarray(x)
+
+    return jax.tree.map(get, tree)
+
+
+def local_part(tree: Any) -> Any:
+    """numpy copies of this process's rows of every batch-sharded leaf (the whole leaf in a
+    single-process run), in batch order: what :func:`local_rows` loaded, after the step."""
+
+    def get(x: Any) -> np.ndarray:
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:
+            shards = {s.index[0].start or 0: s for s in x.addressable_shards}  # replicas hold the same rows
+            return np.concatenate([np.asarray(shards[k].data) for k in sorted(shards)])
         return np.asarray(x)
 
     return jax.tree.map(get, tree)
@@ -131,3 +147,41 @@ def shard_batch(tree: Any, mesh: Mesh | None) -> Any:
     if local:
         return jax.tree.map(lambda x: jax.make_array_from_process_local_data(sharding, np.asarray(x)), tree)
     return jax.device_put(tree, sharding)
+
+
+# ---- the training scripts' options ----------------------------------------------------------------
+
+
+def add_parallel_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--devices``, ``--distributed``, ``--coordinator``, ``--num-processes``, ``--process-id``."""
+    parser.add_argument("--devices", type=positive_int, default=None,
+                        help="data-parallel over this many devices (the batch split, the state replicated; default 1, "
+                             "with --distributed every process's devices; on a CPU host "
+                             "XLA_FLAGS=--xla_force_host_platform_device_count=N gives N)")
+    parser.add_argument("--distributed", action="store_true",
+                        help="one of several processes (jax.distributed): start each with the same arguments and "
+                             "its --process-id (docs/training.md)")
+    parser.add_argument("--coordinator", default=None,
+                        help="with --distributed: host:port of process 0 (default $JAX_COORDINATOR_ADDRESS)")
+    parser.add_argument("--num-processes", type=positive_int, default=None,
+                        help="with --distributed: the process count (default $JAX_NUM_PROCESSES)")
+    parser.add_argument("--process-id", type=nonnegative_int, default=None,
+                        help="with --distributed: this process's id (default $JAX_PROCESS_ID)")
+
+
+def start_parallel(parser: argparse.ArgumentParser, args: argparse.Namespace, batch_size: int) -> bool:
+    """Check the options of :func:`add_parallel_arguments` (``parser.error`` on a bad one), join the
+    multi-process run when ``--distributed``, fill in ``args.devices``; returns whether this is
+    process 0, the one that writes the outputs."""
+    if not args.distributed and (args.coordinator or args.num_processes or args.process_id is not None):
+        parser.error("--coordinator, --num-processes and --process-id need --distributed")
+    if args.distributed:
+        try:
+            initialize_distributed(args.coordinator, args.num_processes, args.process_id)
+        except ValueError as e:
+            parser.error(f"argument --distributed: {e}")
+    if args.devices is None:
+        args.devices = jax.device_count() if args.distributed else 1
+    if problem := devices_problem(args.devices, batch_size):
+        parser.error(f"argument --devices: {problem}")
+    return jax.process_index() == 0

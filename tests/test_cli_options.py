@@ -186,6 +186,7 @@ TRAIN_CASES = [
     ("inpaint", [*INPAINT, "--devices", "0"], "--devices"),
     ("inpaint", [*INPAINT, "--batch", "3", "--devices", "2"], "--devices"),
     ("inpaint", [*INPAINT, "--batch", "4096", "--devices", "4096"], "--devices"),
+    ("inpaint", [*INPAINT, "--coordinator", "127.0.0.1:1"], "--distributed"),
     ("inpaint", [*INPAINT, "--blocks", "-1"], "--blocks"),
     ("inpaint", [*INPAINT, "--size", "30"], "--size"),
     ("inpaint", [*INPAINT, "--size", "0"], "--size"),

@@ -54,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     from privslam_jax.detect.yolov8 import SCALES
     from privslam_jax.detect.weights import save_checkpoint
     from privslam_jax.metrics.detection import evaluate_yolo_folder
+    from privslam_jax.sharding import add_parallel_arguments, start_parallel
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", required=True, help="YOLO dataset root")
@@ -87,14 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--domain", choices=("synthetic", "real", "unknown"), default="unknown",
                    help="what the training data was, recorded in the checkpoint (real: any real frames in it)")
     p.add_argument("--coco-names", action="store_true", help="store COCO class names in the checkpoint")
-    p.add_argument("--distributed", action="store_true",
-                   help="one of several processes (jax.distributed; see the module docstring)")
-    p.add_argument("--coordinator", default=None, help="with --distributed: host:port of process 0")
-    p.add_argument("--num-processes", type=positive_int, default=None, help="with --distributed: the process count")
-    p.add_argument("--process-id", type=nonnegative_int, default=None, help="with --distributed: this process's id")
-    p.add_argument("--devices", type=positive_int, default=None,
-                   help="data-parallel over this many devices (the batch split, the state replicated; default 1, with --distributed every process's devices; "
-                        "on a CPU host XLA_FLAGS=--xla_force_host_platform_device_count=N gives N)")
+    add_parallel_arguments(p)
     p.add_argument("--synth-train-seeds", type=seed_list, default=None,
                    help="A-B: export synthetic seeds A..B as the train split first")
     p.add_argument("--synth-val-seeds", type=seed_list, default=None,
@@ -104,22 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.imgh is not None and a.imgh > a.imgsz:
         p.error(f"argument --imgh: must be at most --imgsz ({a.imgsz}), got {a.imgh}")
-    if not a.distributed and (a.coordinator or a.num_processes or a.process_id is not None):
-        p.error("--coordinator, --num-processes and --process-id need --distributed")
-    import jax
-
-    from privslam_jax.sharding import devices_problem, initialize_distributed
-
-    if a.distributed:
-        try:
-            initialize_distributed(a.coordinator, a.num_processes, a.process_id)
-        except ValueError as e:
-            p.error(f"argument --distributed: {e}")
-    if a.devices is None:
-        a.devices = jax.device_count() if a.distributed else 1
-    if problem := devices_problem(a.devices, a.batch):
-        p.error(f"argument --devices: {problem}")
-    primary = jax.process_index() == 0
+    primary = start_parallel(p, a, a.batch)
     if a.coco_names and a.num_classes > len(COCO_NAMES_8):
         p.error(f"argument --coco-names: knows the first {len(COCO_NAMES_8)} COCO names, got --num-classes {a.num_classes}")
     for split, seeds in (("train", a.synth_train_seeds), ("val", a.synth_val_seeds)):

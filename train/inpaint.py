@@ -19,6 +19,9 @@ Examples::
     python train/inpaint.py --real ../shared/data/real/kitti_raw_a/frames --shapes ../shared/data/real/kitti_raw_a/maskrcnn_masks \
         --init privslam_jax/assets/inpainter_cpu16.npz --stages edge_inpaint:2000 --workdir runs/real
 
+``--devices N`` and ``--distributed`` (several processes or hosts) as in ``train/detector.py``
+(docs/training.md); with ``--distributed`` process 0 extracts the crop bank and writes the outputs.
+
 Rerunning the same command resumes from ``WORKDIR/checkpoints``. Writes PNG sample grids to
 ``WORKDIR/samples`` and the losses to ``WORKDIR/log.csv``; ``--export`` writes the generators as
 an :class:`~privslam_jax.inpaint.filter.Inpainter` ``.npz`` usable by ``privslam filter``.
@@ -40,6 +43,7 @@ configure_xla()
 def main(argv: list[str] | None = None) -> int:
     from privslam_jax.argtypes import (nonnegative_float, nonnegative_int, open_unit_interval, positive_float,
                                                 positive_int, seed_list, unit_interval)
+    from privslam_jax.sharding import add_parallel_arguments, start_parallel
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     src = p.add_mutually_exclusive_group()
@@ -67,9 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--blocks", type=positive_int, default=8)
     p.add_argument("--size", type=positive_int, default=64, help="training crop size, multiple of 4")
     p.add_argument("--batch", type=positive_int, default=8)
-    p.add_argument("--devices", type=positive_int, default=1,
-                   help="data-parallel over this many devices (the batch split, the networks replicated; default 1; "
-                        "on a CPU host XLA_FLAGS=--xla_force_host_platform_device_count=N gives N)")
+    add_parallel_arguments(p)
     p.add_argument("--steps", default="2000,2000,1000", help="edge,inpaint,joint steps")
     p.add_argument("--stages", help="explicit schedule, e.g. edge:1500,edge_inpaint:5000 (overrides --steps; "
                    "edge_inpaint = official MODEL 3: G2 trained on the frozen edge model's output)")
@@ -91,10 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("give a data source: --synth-frames, --sequence, --folder, --bank and/or --real")
     if a.size % 4:
         p.error(f"argument --size: must be a multiple of 4, got {a.size}")
-    from privslam_jax.sharding import devices_problem
-
-    if problem := devices_problem(a.devices, a.batch):
-        p.error(f"argument --devices: {problem}")
+    primary = start_parallel(p, a, a.batch)
     shape_slice = slice(None)
     if a.shape_files is not None:
         lo, colon, hi = a.shape_files.partition(":")
@@ -145,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         data = CropBank.load(a.bank, seed=a.seed)
     elif bank_path.is_file():  # resume: reuse the crops extracted by the first run
         data = CropBank.load(bank_path, seed=a.seed)
-    elif a.sequence is not None or a.synth_frames is not None:
+    elif primary and (a.sequence is not None or a.synth_frames is not None):
         if a.sequence is not None:
             data = CropBank.from_kitti_layout(a.sequence, a.size, seed=a.seed, frame_stride=a.frame_stride)
         else:
@@ -158,14 +157,20 @@ def main(argv: list[str] | None = None) -> int:
                 for s in tqdm(seeds, desc="worlds", disable=len(seeds) == 1)], seed=a.seed)
         data.save(bank_path)
         print(f"{len(data)} object crops saved to {bank_path}")
+    if a.distributed:  # one crop bank, extracted by process 0; the others load it
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices("crop bank written")
+        if data is None and bank_path.is_file():
+            data = CropBank.load(bank_path, seed=a.seed)
     if a.real:
         masks = image_paths(a.shapes)[shape_slice]
         real = RealHoleData(image_paths(*a.real), object_shapes(masks), a.size, seed=a.seed)
         print(f"real frames: {len(real.paths)}, object shapes: {len(real.shapes)} from {len(masks)} mask files")
         data = real if data is None else Mixture([real, data], [a.real_weight, 1 - a.real_weight], seed=a.seed)
     init = Inpainter.load(a.init) if a.init is not None else None
-    trainer = train(cfg, data, a.workdir, max_steps=a.max_steps, init=init)
-    if a.export is not None:
+    trainer = train(cfg, data, a.workdir, max_steps=a.max_steps, init=init, progress=primary)
+    if a.export is not None and primary:
         trainer.inpainter().save(a.export)
         print(f"inpainter written to {a.export}")
     return 0

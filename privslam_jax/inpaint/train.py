@@ -37,7 +37,7 @@ from flax import nnx
 from tqdm import tqdm
 
 from privslam_jax.data.files import trim_log
-from privslam_jax.sharding import data_mesh, replicate, shard_batch
+from privslam_jax.sharding import data_mesh, local_part, local_rows, replicate, shard_batch, to_host
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint import losses as L
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, Discriminator, EdgeGenerator, InpaintGenerator
@@ -333,7 +333,7 @@ class InpaintTrainer:
             if self.config.inpaint_adv_weight:
                 logs |= _inpaint_d_step(self.inpaint_d, self.opt["inpaint_d"], b, out)
             outs["image"] = out * b["hole"] + b["rgb"] * (1 - b["hole"])
-        return {k: float(v) for k, v in logs.items()}, outs
+        return {k: float(to_host(v)) for k, v in logs.items()}, outs
 
     # ---------------------------------------------------------------- state / checkpoints
     def _objects(self) -> dict[str, nnx.Module | nnx.Optimizer]:
@@ -356,10 +356,14 @@ class InpaintTrainer:
         c = self.config
         cfg = InpainterConfig(width=c.width, num_residual_blocks=c.num_residual_blocks,
                               size=size or c.size, sigma=c.sigma, prefill=c.prefill, residual=c.residual)
-        return Inpainter(nnx.clone(self.edge_g), nnx.clone(self.inpaint_g), cfg)
+        eg, ig = nnx.clone(self.edge_g), nnx.clone(self.inpaint_g)
+        if self.mesh is not None:  # replicated over the mesh (several processes too): one plain copy
+            for m in (eg, ig):
+                nnx.update(m, jax.tree.map(jnp.asarray, to_host(nnx.state(m))))
+        return Inpainter(eg, ig, cfg)
 
 
-def _grid(batch: dict[str, np.ndarray], outs: dict[str, jax.Array], rows: int = 4) -> np.ndarray:
+def _grid(batch: dict[str, np.ndarray], outs: dict[str, np.ndarray], rows: int = 4) -> np.ndarray:
     """PNG grid: masked input | input edges | predicted edges | output | target, one row each."""
     m = batch["hole"]
     masked = batch["fill"]  # the image with G2's hole fill (white for the official prefill)
@@ -393,7 +397,10 @@ def train(
 
     Writes ``workdir/checkpoints/<step>`` (orbax), ``workdir/samples/step_<n>.png`` and
     ``workdir/log.csv`` (step, stage, seconds, losses). ``max_steps`` stops early (e.g. to
-    simulate a kill); rerunning the same call resumes from the latest checkpoint.
+    simulate a kill); rerunning the same call resumes from the latest checkpoint.  In a
+    multi-process run (:func:`~privslam_jax.sharding.initialize_distributed` first) every process
+    calls this with the same arguments and prepares only its rows of each batch; process 0 writes
+    the log and the samples, orbax the shared checkpoints.
     """
     import orbax.checkpoint as ocp
 
@@ -410,7 +417,7 @@ def train(
         restored = mngr.restore(start, args=ocp.args.StandardRestore(trainer.state_dict()))
         # orbax returns arrays committed to the device, fresh ones are not: uncommitted copies keep
         # the jitted steps' cache (in memory and on disk) valid instead of compiling all four anew
-        trainer.load_state_dict(jax.tree.map(lambda x: jnp.array(np.asarray(x)), restored))
+        trainer.load_state_dict(jax.tree.map(lambda x: jnp.array(to_host(x)), restored))
     elif init is not None:
         if (init.config.width, init.config.num_residual_blocks) != (config.width, config.num_residual_blocks):
             raise ValueError(f"init inpainter has width {init.config.width}, {init.config.num_residual_blocks} blocks; "
@@ -425,24 +432,29 @@ def train(
         trainer._replicate()
     end = config.total_steps if max_steps is None else min(max_steps, config.total_steps)
     log_path = workdir / "log.csv"
-    trim_log(log_path, start)  # drop rows logged after the checkpoint we resume from, and a row cut short
-    bar = tqdm(range(start, end), initial=start, total=config.total_steps, disable=not progress, desc="inpaint")
+    primary = jax.process_index() == 0  # writes the log and the samples
+    if primary:
+        trim_log(log_path, start)  # drop rows logged after the checkpoint we resume from, and a row cut short
+    rows = local_rows(config.batch_size)  # this process's rows of every global batch (all of them in one process)
+    bar = tqdm(range(start, end), initial=start, total=config.total_steps, disable=not (progress and primary),
+               desc="inpaint")
     for step in bar:
         stage = config.stage_at(step)
         images, holes = data(step, config.batch_size)
-        batch = prepare_batch(images, holes, config.sigma, config.prefill)
+        batch = prepare_batch(images[rows], holes[rows], config.sigma, config.prefill)
         t0 = time.perf_counter()
         logs, outs = trainer.step(stage, batch)
         dt = time.perf_counter() - t0
         bar.set_postfix({"stage": stage} | {k: f"{v:.3f}" for k, v in logs.items()})
-        with log_path.open("a") as f:
-            if f.tell() == 0:
-                f.write("step,stage,seconds,losses\n")
-            f.write(f"{step + 1},{stage},{dt:.4f}," + ";".join(f"{k}={v:.5f}" for k, v in logs.items()) + "\n")
         done = step + 1
-        if config.sample_every and (done % config.sample_every == 0 or done == end):
-            cv2.imwrite(str(workdir / "samples" / f"step_{done:07d}.png"),
-                        cv2.cvtColor(_grid(batch, outs), cv2.COLOR_RGB2BGR))
+        if primary:
+            with log_path.open("a") as f:
+                if f.tell() == 0:
+                    f.write("step,stage,seconds,losses\n")
+                f.write(f"{done},{stage},{dt:.4f}," + ";".join(f"{k}={v:.5f}" for k, v in logs.items()) + "\n")
+            if config.sample_every and (done % config.sample_every == 0 or done == end):
+                cv2.imwrite(str(workdir / "samples" / f"step_{done:07d}.png"),
+                            cv2.cvtColor(_grid(batch, local_part(outs)), cv2.COLOR_RGB2BGR))
         if done % config.checkpoint_every == 0 or done == end:
             mngr.save(done, args=ocp.args.StandardSave(trainer.state_dict()))
     mngr.wait_until_finished()
