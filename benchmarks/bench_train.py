@@ -69,10 +69,10 @@ def _worker(a: argparse.Namespace) -> None:
 
         cfg = TrainConfig(size=s, batch_size=a.batch, stages=(("edge_inpaint", 10_000),), checkpoint_every=10**9,
                           sample_every=0, devices=devices)
-        with tempfile.TemporaryDirectory() as work:
-            train(cfg, data, Path(work) / "warm", max_steps=2, progress=False)
-            t = time.perf_counter()
-            train(cfg, data, Path(work) / "timed", max_steps=a.steps, progress=False)
+        work = Path(a.data).parent / f"inpaint-{a.processes}x{devices}"  # shared by the processes (orbax)
+        train(cfg, data, work / "warm", max_steps=2, progress=False)
+        t = time.perf_counter()
+        train(cfg, data, work / "timed", max_steps=a.steps, progress=False)
     seconds = time.perf_counter() - t
     if jax.process_index() == 0:
         print(json.dumps({"devices": devices, "seconds": seconds, "images_per_s": a.steps * a.batch / seconds}))
