@@ -41,6 +41,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import jaxlie
 import matplotlib.pyplot as plt
@@ -89,16 +90,23 @@ print(f"pair ({r}, {r + config.gap}): {len(masks_t)} objects in the target, "
 inpainter = Inpainter.embedded("synthetic")
 detector, detector_params = DetectorModel.split(load_detector(EMBEDDED_WEIGHTS)[0])
 filters = ["none", "edgeconnect", "black", "telea", "blur"]
+
+
+@jax.jit  # one program for the three objectives, called once per filter (data as arguments, not constants)
+def objectives(y_t, y_r, masks, background, depth):
+    return (privacy_loss(detector_params, y_t, masks, detector, input_hw=config.detector_input_hw),
+            fidelity_loss(y_t, background, masks),
+            accuracy_loss(y_t, y_r, depth, K, T_gt, config=config.alignment))
+
+
 filtered, rows = {}, []
 for name in filters:
     pair = [f.image if name == "none" else filter_frame(f.image, m, name, inpainter=inpainter, seed=f.index)
             for f, m in ((ref, masks_r), (tgt, masks_t))]
     filtered[name] = pair
     y_r, y_t = (jnp.asarray(x, jnp.float32) for x in pair)
-    rows.append((name,
-                 float(privacy_loss(detector_params, y_t, masks_t, detector, input_hw=config.detector_input_hw)),
-                 float(fidelity_loss(y_t, jnp.asarray(tgt.background, jnp.float32), masks_t)),
-                 float(accuracy_loss(y_t, y_r, jnp.asarray(ref.depth, jnp.float32), K, T_gt, config=config.alignment))))
+    values = objectives(y_t, y_r, masks_t, jnp.asarray(tgt.background, jnp.float32), jnp.asarray(ref.depth, jnp.float32))
+    rows.append((name, *(float(v) for v in values)))
 print(f"{'filter':<12} {'L_priv':>8} {'L_fid':>8} {'L_acc (m)':>10}")
 for name, lp, lf, la in rows:
     print(f"{name:<12} {lp:8.4f} {lf:8.4f} {la:10.4f}")
