@@ -46,6 +46,11 @@ from privslam_jax.privacy.lift import (
     paired_lift_core,
     random_lift,
     random_lift_core,
+    ray_anchors,
+    ray_lift,
+    ray_lift_core,
+    sphere_lift,
+    sphere_lift_core,
 )
 from privslam_jax.types import LineCloud
 
@@ -125,22 +130,37 @@ def _newton_minimiser(directions, moments, nb, sigma, t0):
     return a, d, t
 
 
-@pytest.mark.parametrize("core, host", [(random_lift_core, random_lift), (paired_lift_core, paired_lift)])
-def test_lift_core_gradient_and_host_equality(core, host):
+def _ray_core(pts, key):
+    """``ray_lift_core`` with the 4 anchors ``ray_lift(pts, key, 4)`` picks, held constant."""
+    anchors = jnp.asarray(ray_anchors(np.asarray(pts), 4, jax.random.split(key, 3)[0]))
+    return lambda p: ray_lift_core(p, anchors, key)
+
+
+@pytest.mark.parametrize("bind, host", [
+    (lambda pts, key: lambda p: random_lift_core(p, key), random_lift),
+    (lambda pts, key: lambda p: paired_lift_core(p, key), paired_lift),
+    (_ray_core, lambda p, key: ray_lift(p, key, num_anchors=4)),
+    (lambda pts, key: lambda p: sphere_lift_core(p, key), sphere_lift),
+], ids=["random", "paired", "ray", "sphere"])
+def test_lift_core_gradient_and_host_equality(bind, host):
+    """Gradients of a scalar of the core's lines in the points against central differences; the core
+    equals the host lift for distinct points.  The ray cloud's anchors (k-means, on the host) are held
+    at their value for the unperturbed points; the sphere cloud's centroid moves with the points."""
     rng = np.random.default_rng(0)
     with jax.enable_x64(True):
         pts = jnp.asarray(rng.uniform(-10, 10, (41, 3)))  # odd: the paired lift has an odd one out
         key = fixed_key(3)
+        core = bind(pts, key)
         wd, wm = (jnp.asarray(w) for w in rng.normal(size=(2, 41, 3)))
 
         def f(p):
-            lines = core(p, key)
+            lines = core(p)
             return jnp.sum(wd * lines.directions) + jnp.sum(jnp.sin(wm * lines.moments))
 
         grad = jax.jit(jax.grad(f))(pts)
         _check_fd(jax.jit(f), pts, grad, rng, 1e-7)
         # the core is the host lift (distinct points) up to rounding
-        a, b = core(pts, key), host(np.asarray(pts), key)
+        a, b = core(pts), host(np.asarray(pts), key)
         np.testing.assert_allclose(np.asarray(a.directions), np.asarray(b.directions), rtol=0, atol=1e-13)
         np.testing.assert_allclose(np.asarray(a.moments), np.asarray(b.moments), rtol=0, atol=1e-12)
 

@@ -1,5 +1,6 @@
 """Lifts: uniform directions (a test that rejects biased samplers), points on their lines,
-naive decoders fail, default keys differ; Plücker helpers against numpy closed forms."""
+naive decoders fail, default keys differ; ray and sphere clouds meet at their centres with balanced
+signs and a position-blind anchor choice; Plücker helpers against numpy closed forms."""
 
 from __future__ import annotations
 
@@ -16,7 +17,18 @@ from privslam_jax.geometry.plucker import (
     lines_from_points_directions,
     point_line_distance,
 )
-from privslam_jax.privacy.lift import entropy_key, fixed_key, paired_lift, pairing, random_lift
+from privslam_jax.privacy.lift import (
+    entropy_key,
+    fixed_key,
+    paired_lift,
+    pairing,
+    random_lift,
+    ray_anchors,
+    ray_lift,
+    sphere_lift,
+)
+
+LIFTS = [random_lift, paired_lift, ray_lift, sphere_lift]
 
 
 def isotropy_pvalues(d: np.ndarray) -> tuple[float, float]:
@@ -51,7 +63,7 @@ def _points(n=300, seed=0):
     return rng.uniform(-30, 30, size=(n, 3))
 
 
-@pytest.mark.parametrize("lift", [random_lift, paired_lift])
+@pytest.mark.parametrize("lift", LIFTS)
 def test_points_on_lines_and_naive_decoders_fail(lift):
     pts = _points()
     with jax.enable_x64(True):
@@ -70,8 +82,9 @@ def test_default_lifts_differ_and_fixed_seed_reproduces():
     pts = _points(50)
     a, b = random_lift(pts), random_lift(pts)
     assert not np.allclose(np.asarray(a.directions), np.asarray(b.directions))
-    pa, pb = paired_lift(pts), paired_lift(pts)
-    assert not np.allclose(np.asarray(pa.directions), np.asarray(pb.directions))
+    for lift in (paired_lift, ray_lift, sphere_lift):
+        pa, pb = lift(pts), lift(pts)
+        assert not np.allclose(np.asarray(pa.directions), np.asarray(pb.directions)), lift.__name__
     k1, k2 = entropy_key(), entropy_key()
     assert not np.array_equal(np.asarray(jax.random.key_data(k1)), np.asarray(jax.random.key_data(k2)))
     np.testing.assert_array_equal(
@@ -99,6 +112,13 @@ def test_bad_points():
         random_lift(np.zeros((4, 2)), fixed_key(0))
     with pytest.raises(ValueError, match="NaN"):
         paired_lift(np.full((4, 3), np.nan), fixed_key(0))
+    for lift in (ray_lift, sphere_lift):
+        with pytest.raises(ValueError, match="shape"):
+            lift(np.zeros((4,)), fixed_key(0))
+        with pytest.raises(ValueError, match="NaN"):
+            lift(np.array([[0.0, 1.0, np.inf]]), fixed_key(0))
+    with pytest.raises(ValueError, match="num_anchors"):
+        ray_lift(np.zeros((4, 3)), fixed_key(0), num_anchors=0)
 
 
 def test_plucker_helpers_against_numpy():
@@ -126,7 +146,7 @@ def test_plucker_helpers_against_numpy():
     np.testing.assert_allclose(lld[0], np.linalg.norm(np.cross(p2[0] - p1[0], d1[0])), atol=1e-9)
 
 
-@pytest.mark.parametrize("lift", [random_lift, paired_lift])
+@pytest.mark.parametrize("lift", LIFTS)
 def test_repeated_points_share_one_line_and_the_attack_learns_nothing_more(lift):
     """Issue 15 item 5: a repeated point was lifted to distinct lines through it, and Line2Point
     recovered it to 8e-6 m. Copies now share one line; a cloud without copies lifts as before."""
@@ -153,7 +173,7 @@ def test_repeated_points_share_one_line_and_the_attack_learns_nothing_more(lift)
     assert np.median(err) > 0.01  # before the fix: ~1e-5 m for every repeated point
 
 
-@pytest.mark.parametrize("lift", [random_lift, paired_lift])
+@pytest.mark.parametrize("lift", LIFTS)
 @pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3, 1e5, 1e7])
 def test_lines_pass_through_their_points_at_any_scale_and_survive_the_ply(lift, scale, tmp_path):
     """Issue 15 item 4: float32 lifts of UTM-scale maps were off by metres, and their PLY unit
@@ -258,3 +278,59 @@ def test_paired_lift_sign_is_balanced():
     a, b = perm[0 : n - 1 : 2], perm[1 : n - 1 : 2]
     k = int(np.sum(np.sum(d[a] * (pts[b] - pts[a]), axis=1) > 0))
     assert stats.binomtest(k, len(a), 0.5).pvalue > 1e-3, k
+
+
+def _centre_of_each_line(d: np.ndarray, m: np.ndarray, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(index, distance)`` of the centre nearest to each line (``‖c × d − m‖``, float64)."""
+    dist = np.linalg.norm(np.cross(centres[None, :, :], d[:, None, :]) - m[:, None, :], axis=2)
+    return dist.argmin(1), dist.min(1)
+
+
+def test_ray_cloud_lines_meet_at_anchors_chosen_blind_to_position():
+    """Ray clouds: every line passes through its point and, to float64 rounding, exactly one of the
+    k-means anchors (``scipy.cluster.vq.kmeans2``).  The anchor a point gets must not say where it is:
+    the counts per anchor pass a chi-square test of uniformity, and the share of points whose line goes
+    through their *nearest* anchor is 1/k (``scipy.stats.binomtest``; a nearest-anchor rule gives
+    1.0).  The sign of each direction (towards or away from the point) is a fair coin."""
+    n, k = 4000, 8
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([rng.normal(c, 3.0, (n // 4, 3)) for c in ((0, 0, 0), (40, 0, 5), (0, 30, -5), (25, 25, 0))])
+    key = fixed_key(2)
+    lines = ray_lift(pts, key, num_anchors=k)
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    assert np.linalg.norm(np.cross(pts, d) - m, axis=1).max() < 1e-9
+    anchors = ray_anchors(pts, k, jax.random.split(key, 3)[0])
+    assert anchors.shape == (k, 3)
+    which, dist = _centre_of_each_line(d, m, anchors)
+    assert dist.max() < 1e-9
+    counts = np.bincount(which, minlength=k)
+    assert stats.chisquare(counts).pvalue > 1e-3, counts
+    nearest = np.linalg.norm(pts[:, None] - anchors[None], axis=2).argmin(1)
+    hits = int(np.sum(nearest == which))
+    assert stats.binomtest(hits, n, 1 / k).pvalue > 1e-3, hits
+    away = np.sum(d * (pts - anchors[which]), axis=1) > 0
+    assert stats.binomtest(int(away.sum()), n, 0.5).pvalue > 1e-3
+    # fewer distinct points than anchors: every point is its own anchor, lines still through the points
+    few = pts[:3]
+    small = ray_lift(few, key, num_anchors=k)
+    assert np.linalg.norm(np.cross(few, np.asarray(small.directions)) - np.asarray(small.moments), axis=1).max() < 1e-9
+
+
+def test_sphere_cloud_lines_meet_at_the_centroid_with_fair_signs():
+    """Sphere clouds: every line passes through its point and the centroid of the distinct points; the
+    direction's sign is a fair coin; a point on the centroid still gets a line through it."""
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-20, 20, (3001, 3)) + np.array([100.0, -50.0, 3.0])
+    c = pts.mean(0)
+    lines = sphere_lift(pts, fixed_key(4))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    assert np.linalg.norm(np.cross(pts, d) - m, axis=1).max() < 1e-12 * np.abs(pts).max()
+    assert np.linalg.norm(np.cross(c, d) - m, axis=1).max() < 1e-12 * np.abs(pts).max()
+    away = np.sum(d * (pts - c), axis=1) > 0
+    assert stats.binomtest(int(away.sum()), len(pts), 0.5).pvalue > 1e-3
+    a, b = rng.normal(size=(2, 3))
+    on_centre = np.stack([a, -a, b, -b, np.zeros(3)])  # centroid exactly the origin, where point 4 is
+    lines = sphere_lift(on_centre, fixed_key(0))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    assert np.linalg.norm(np.cross(on_centre, d) - m, axis=1).max() < 1e-12

@@ -49,6 +49,21 @@ def test_lift_attack_eval(tmp_path, capsys):
     main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "a.ply"), "--method", "paired"])
     main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "b.ply"), "--method", "paired"])
     assert (tmp_path / "a.ply").read_bytes() != (tmp_path / "b.ply").read_bytes()
+    # ray and sphere clouds: point i on line i, and every line through one of the 3 anchors / the centroid
+    import jax
+
+    from privslam_jax.privacy.lift import fixed_key, ray_anchors
+
+    centres = {"ray": ray_anchors(pts, 3, jax.random.split(fixed_key(5), 3)[0]), "sphere": pts.mean(0, keepdims=True)}
+    for method, centre in centres.items():
+        out = tmp_path / f"{method}.ply"
+        assert main(["lift", str(tmp_path / "p.ply"), "--out", str(out), "--method", method, "--seed", "5",
+                     "--anchors", "3"]) == 0
+        lines = load_line_cloud(out)
+        d, m = np.asarray(lines.directions, np.float64), np.asarray(lines.moments, np.float64)
+        assert np.max(np.linalg.norm(np.cross(pts, d) - m, axis=1)) < 1e-3
+        to_centre = np.linalg.norm(np.cross(centre[None], d[:, None]) - m[:, None], axis=2).min(1)
+        assert to_centre.max() < 1e-3, method
 
 
 def test_clean_errors(tmp_path, capsys):

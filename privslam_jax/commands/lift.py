@@ -4,7 +4,10 @@ Line ``i`` is written as vertices ``2i``, ``2i+1`` (its canonical unit segment, 
 line's closest point to the origin) and edge ``i``; it corresponds to point ``i``.
 ``--method random`` (default): a uniformly random direction through each point;
 ``--method paired``: paired-point lifting (Lee et al., CVPR 2023), one line through each random
-pair of points.  POINTS may also be a BAL problem (``*.bal``, ``*.bal.txt``, optionally ``.bz2``):
+pair of points; ``--method ray``: ray clouds (Moon et al., CVPR 2024), each line through its point
+and a random one of ``--anchors`` k-means centres of the map; ``--method sphere``: sphere clouds
+(Moon et al., BMVC 2024), every line through the map's centroid.  See docs/privacy.md for what
+each one hides and what it costs.  POINTS may also be a BAL problem (``*.bal``, ``*.bal.txt``, optionally ``.bz2``):
 its 3D points are lifted.  Without ``--seed`` the key comes from OS entropy (the secure default); a seed
 makes the lift reproducible and is for experiments only.
 """
@@ -16,6 +19,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+from privslam_jax.argtypes import positive_int
 
 __all__ = ["add_parser", "run", "load_points"]
 
@@ -56,7 +61,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("points", type=Path, help="input point cloud: PLY, or a BAL problem (its points)")
     p.add_argument("--out", type=Path, required=True, help="output line cloud, PLY")
-    p.add_argument("--method", choices=("random", "paired"), default="random", help="lift (default random)")
+    p.add_argument("--method", choices=("random", "paired", "ray", "sphere"), default="random",
+                   help="lift (default random)")
+    p.add_argument("--anchors", type=positive_int, default=8, help="anchors of --method ray (default 8)")
     p.add_argument("--seed", type=int, default=None, help="fixed seed (experiments only; default: OS entropy)")
     p.add_argument("--ascii", action="store_true", help="write ASCII PLY (default binary little-endian)")
     p.set_defaults(func=run)
@@ -64,7 +71,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from privslam_jax.data.ply import save_line_cloud
-    from privslam_jax.privacy.lift import entropy_key, fixed_key, paired_lift, random_lift, unique_points
+    from privslam_jax.privacy.lift import (
+        entropy_key,
+        fixed_key,
+        paired_lift,
+        random_lift,
+        ray_lift,
+        sphere_lift,
+        unique_points,
+    )
 
     cloud = load_points(args.points)
     if args.seed is None:
@@ -72,8 +87,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"privslam lift: fixed seed {args.seed}: reproducible, NOT secret", file=sys.stderr)
         key = fixed_key(args.seed)
-    lift = random_lift if args.method == "random" else paired_lift
-    lines = lift(cloud.xyz, key)
+    lifts = {"random": random_lift, "paired": paired_lift, "sphere": sphere_lift,
+             "ray": lambda p, k: ray_lift(p, k, num_anchors=args.anchors)}
+    lines = lifts[args.method](cloud.xyz, key)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_line_cloud(args.out, lines, binary=not args.ascii)
     first, _ = unique_points(np.asarray(cloud.xyz))

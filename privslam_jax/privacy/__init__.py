@@ -9,4 +9,9 @@ from privslam_jax.privacy.lift import (
     random_directions,
     random_lift,
     random_lift_core,
+    ray_anchors,
+    ray_lift,
+    ray_lift_core,
+    sphere_lift,
+    sphere_lift_core,
 )

@@ -9,6 +9,24 @@
   a line no longer identifies one point.  **Pairing rule used here**: a uniformly random perfect
   matching (a random permutation from the key; consecutive entries are paired).  With an odd
   count the left-over point, and any pair closer than ``1e-9`` m, gets a random-direction line.
+* :func:`ray_lift` — ray clouds (Moon et al., CVPR 2024, "Efficient Privacy-Preserving Visual
+  Localization Using 3D Ray Clouds"): every point's line passes through one of a few *anchors*, so
+  the lines of a map meet at the anchors and the density peaks that Line2Point looks for sit
+  there, not at the points.  **Rules used here**: the anchors are the k-means centres of the map
+  (``scipy.cluster.vq.kmeans2``, k-means++ start, seeded from the key), and each point is given a
+  uniformly random anchor (not its nearest one: the nearest anchor would say in which region of the
+  map the point lies).  The anchors themselves are public (any two lines of a cluster meet there):
+  they reveal the map's coarse layout at ``num_anchors`` points, and nothing finer.
+* :func:`sphere_lift` — sphere clouds (Moon et al., BMVC 2024, "Privacy-Preserving Visual
+  Localization Using 3D Sphere Clouds"): every line passes through the map's centroid, so the
+  cloud is a set of directions seen from one point (a panorama without depth).  The centroid is
+  public.  What it leaks is the bearing of every point from the centroid; its weakness is depth
+  recovery from neighbouring bearings (the attacks of issue 19 item 2).
+
+For ray and sphere clouds the direction is ``±(p − c)/‖p − c‖`` with a random sign (the sign must
+not say on which side of its centre a point lies) and the moment is ``c × d``, computed from the
+centre ``c``, so all lines of one centre meet there exactly; a point closer than ``1e-9`` m to its
+centre gets a random-direction line through it.
 
 The output is a :class:`~privslam_jax.types.LineCloud` in Plücker coordinates ``(d, m = p × d)``,
 which carries nothing but the line: the original point is never stored.  Line ``i`` is the line
@@ -30,19 +48,20 @@ arrays as before.
 the operating system's entropy (``os.urandom``, 64 bits), so two default lifts of the same
 cloud differ; pass :func:`fixed_key` (an explicit seed) only for reproducible experiments.
 
-**Host entry points and differentiable cores.**  :func:`random_lift` and :func:`paired_lift`
-are host functions: they check the points (``ValueError``), merge repeated points and compute
-in float64 numpy.  :func:`random_lift_core` and :func:`paired_lift_core` are the same lifts as
-pure JAX functions of ``(points, key)``: no checks, jit-able, differentiable in the points, in
+**Host entry points and differentiable cores.**  The four lifts are host functions: they check the points (``ValueError``), merge repeated points and compute
+in float64 numpy.  :func:`random_lift_core`, :func:`paired_lift_core`, :func:`ray_lift_core` and
+:func:`sphere_lift_core` are the same lifts as pure JAX functions of ``(points, key)``: no checks, jit-able, differentiable in the points, in
 the points' dtype.  They do **not** merge repeated points (copies get distinct lines that meet
 at the point), so a published line cloud must come from the host functions; for a cloud without
 repeated points they give the same lines (to rounding).  What is constant for the gradient: the
-random directions, signs and pairing (functions of the key only).
+random directions, signs, pairing and anchor assignment (functions of the key only); a ray cloud's
+anchors are an argument of its core (k-means runs on the host).
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -61,6 +80,11 @@ __all__ = [
     "paired_lift",
     "paired_lift_core",
     "pairing",
+    "ray_anchors",
+    "ray_lift",
+    "ray_lift_core",
+    "sphere_lift",
+    "sphere_lift_core",
     "unique_points",
 ]
 
@@ -225,3 +249,113 @@ def paired_lift_core(points: Float[Array, "N 3"], key: jax.Array) -> LineCloud:
     degenerate = length < 1e-9
     d = jnp.where(degenerate, rnd, sign * diff / jnp.where(degenerate, 1.0, length))
     return LineCloud(directions=d, moments=jnp.cross(points[rep], d))
+
+
+def _signs(key: jax.Array, n: int) -> np.ndarray:
+    """``±1`` per line, fair coin flips from ``key`` (``(n, 1)`` float64)."""
+    return np.where(np.asarray(jax.random.bernoulli(key, 0.5, (n, 1))), 1.0, -1.0)
+
+
+def _lines_through_centres(p: np.ndarray, centres: np.ndarray, key: jax.Array, dtype: np.dtype) -> LineCloud:
+    """Line ``i`` through ``p[i]`` and ``centres[i]`` (random sign; moment from the centre; a point on
+    its centre gets a random direction through the point), float64 numpy in, ``dtype`` out."""
+    k_sign, k_dir = jax.random.split(key)
+    diff = p - centres
+    length = np.linalg.norm(diff, axis=-1, keepdims=True)
+    degenerate = length < 1e-9
+    d = np.where(degenerate, _directions(k_dir, len(p)), _signs(k_sign, len(p)) * diff / np.where(degenerate, 1.0, length))
+    m = np.where(degenerate, np.cross(p, d), np.cross(centres, d))
+    return _lines(d, m, dtype)
+
+
+def _core_through_centres(points: Float[Array, "N 3"], centres: Float[Array, "N 3"], key: jax.Array) -> LineCloud:
+    """:func:`_lines_through_centres` in JAX: differentiable in ``points`` and ``centres``."""
+    n = points.shape[0]
+    k_sign, k_dir = jax.random.split(key)
+    diff = points - centres
+    length = safe_norm(diff, keepdims=True)
+    degenerate = length < 1e-9
+    rnd = _raw_directions(k_dir, n).astype(points.dtype)
+    rnd = rnd / jnp.linalg.norm(rnd, axis=-1, keepdims=True)
+    sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (n, 1)), 1.0, -1.0).astype(points.dtype)
+    d = jnp.where(degenerate, rnd, sign * diff / jnp.where(degenerate, 1.0, length))
+    return LineCloud(directions=d, moments=jnp.cross(jnp.where(degenerate, points, centres), d))
+
+
+def ray_anchors(points: ArrayLike, num_anchors: int, key: jax.Array) -> np.ndarray:
+    """The anchors of :func:`ray_lift`: ``(k, 3)`` k-means centres (float64) of the distinct points,
+    ``k = min(num_anchors, number of distinct points)``; k-means++ start seeded from ``key``."""
+    from scipy.cluster.vq import kmeans2
+
+    if not isinstance(num_anchors, (int, np.integer)) or isinstance(num_anchors, bool) or num_anchors < 1:
+        raise ValueError(f"num_anchors must be a positive int, got {num_anchors!r}")
+    p, _ = _as_points(points)
+    distinct = p[unique_points(p)[0]]
+    k = min(int(num_anchors), len(distinct))
+    if k == len(distinct):
+        return distinct.copy()
+    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).astype(np.uint64))
+    with warnings.catch_warnings():  # an emptied cluster keeps its previous centre: still an anchor
+        warnings.filterwarnings("ignore", message="One of the clusters is empty")
+        centres, _ = kmeans2(distinct, k, minit="++", seed=rng)
+    return np.asarray(centres, np.float64)
+
+
+def _assignment(key: jax.Array, n: int, k: int) -> jax.Array:
+    """A uniformly random anchor index per point."""
+    return jax.random.randint(key, (n,), 0, k)
+
+
+def ray_lift(points: ArrayLike, key: jax.Array | None = None, num_anchors: int = 8) -> LineCloud:
+    """Ray-cloud lifting (Moon et al., CVPR 2024): line ``i`` passes through point ``i`` and a uniformly
+    random one of ``num_anchors`` anchors, the k-means centres of the map (:func:`ray_anchors`).
+
+    Args:
+      points: ``(N, 3)`` points.
+      key: a ``jax.random`` key; ``None`` (default) draws one from OS entropy.
+      num_anchors: how many anchors (fewer if the map has fewer distinct points).
+    """
+    p, dtype = _as_points(points)
+    key = entropy_key() if key is None else key
+    k_anchor, k_assign, k_line = jax.random.split(key, 3)
+    first, inverse = unique_points(p)
+    anchors = ray_anchors(p, num_anchors, k_anchor)
+    assign = np.asarray(_assignment(k_assign, len(first), len(anchors)))
+    lines = _lines_through_centres(p[first], anchors[assign], k_line, np.dtype(np.float64))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    return _lines(d[inverse], m[inverse], dtype)  # repeated points share their line
+
+
+def ray_lift_core(points: Float[Array, "N 3"], anchors: Float[Array, "K 3"], key: jax.Array) -> LineCloud:
+    """:func:`ray_lift` as a pure JAX function of the points and the anchors: jit-able, differentiable in
+    both.  ``ray_lift_core(p, ray_anchors(p, k, k_anchor), key)`` equals ``ray_lift(p, key, k)`` (to
+    rounding) for a cloud without repeated points, where ``k_anchor`` is the first of
+    ``jax.random.split(key, 3)``; the assignment and signs are functions of the key only."""
+    _, k_assign, k_line = jax.random.split(key, 3)
+    assign = _assignment(k_assign, points.shape[0], anchors.shape[0])
+    return _core_through_centres(points, anchors.astype(points.dtype)[assign], k_line)
+
+
+def sphere_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
+    """Sphere-cloud lifting (Moon et al., BMVC 2024): line ``i`` passes through point ``i`` and the
+    centroid of the map's distinct points.
+
+    Args:
+      points: ``(N, 3)`` points.
+      key: a ``jax.random`` key (the signs, and directions of points on the centroid); ``None``
+        (default) draws one from OS entropy.
+    """
+    p, dtype = _as_points(points)
+    key = entropy_key() if key is None else key
+    first, inverse = unique_points(p)
+    centre = p[first].mean(axis=0, keepdims=True)
+    lines = _lines_through_centres(p[first], np.repeat(centre, len(first), axis=0), key, np.dtype(np.float64))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    return _lines(d[inverse], m[inverse], dtype)
+
+
+def sphere_lift_core(points: Float[Array, "N 3"], key: jax.Array) -> LineCloud:
+    """:func:`sphere_lift` as a pure JAX function: jit-able, differentiable in ``points`` (through the
+    centroid too); equal to :func:`sphere_lift` for a cloud without repeated points, to rounding."""
+    centre = jnp.broadcast_to(jnp.mean(points, axis=0, keepdims=True), points.shape)
+    return _core_through_centres(points, centre, key)
