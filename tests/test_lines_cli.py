@@ -64,6 +64,16 @@ def test_lift_attack_eval(tmp_path, capsys):
         assert np.max(np.linalg.norm(np.cross(pts, d) - m, axis=1)) < 1e-3
         to_centre = np.linalg.norm(np.cross(centre[None], d[:, None]) - m[:, None], axis=2).min(1)
         assert to_centre.max() < 1e-3, method
+    # the attack made for ray clouds: one point per line, on its line, the 3 anchors found
+    capsys.readouterr()
+    assert main(["attack", str(tmp_path / "ray.ply"), "--out", str(tmp_path / "r_ray.ply"), "--method", "ray"]) == 0
+    assert "3 centres" in capsys.readouterr().out
+    lines = load_line_cloud(tmp_path / "ray.ply")
+    rec = np.asarray(load_point_cloud(tmp_path / "r_ray.ply").xyz)
+    assert rec.shape == pts.shape and rec.dtype == np.float32
+    assert np.max(np.linalg.norm(np.cross(rec, np.asarray(lines.directions)) - np.asarray(lines.moments), axis=1)) < 1e-3
+    assert main(["attack", str(tmp_path / "l.ply"), "--out", str(tmp_path / "x.ply"), "--method", "ray"]) == 2
+    assert "not a ray cloud" in capsys.readouterr().err
 
 
 def test_clean_errors(tmp_path, capsys):

@@ -18,3 +18,4 @@ from privslam_jax.attacks.line2point import (
     select_smallest,
     sort_values,
 )
+from privslam_jax.attacks.centred import find_centres, ray_cloud_attack
