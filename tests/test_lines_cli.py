@@ -49,6 +49,14 @@ def test_lift_attack_eval(tmp_path, capsys):
     main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "a.ply"), "--method", "paired"])
     main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "b.ply"), "--method", "paired"])
     assert (tmp_path / "a.ply").read_bytes() != (tmp_path / "b.ply").read_bytes()
+    # two-peak finding on the paired cloud: the pairs are found, each point on its line
+    capsys.readouterr()
+    assert main(["attack", str(tmp_path / "a.ply"), "--out", str(tmp_path / "r_tpf.ply"), "--method", "tpf"]) == 0
+    assert f"{len(pts) // 2} pairs" in capsys.readouterr().out
+    paired = load_line_cloud(tmp_path / "a.ply")
+    rec = np.asarray(load_point_cloud(tmp_path / "r_tpf.ply").xyz)
+    assert rec.shape == pts.shape
+    assert np.max(np.linalg.norm(np.cross(rec, np.asarray(paired.directions)) - np.asarray(paired.moments), axis=1)) < 1e-3
     # ray and sphere clouds: point i on line i, and every line through one of the 3 anchors / the centroid
     import jax
 

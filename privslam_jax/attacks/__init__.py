@@ -19,3 +19,4 @@ from privslam_jax.attacks.line2point import (
     sort_values,
 )
 from privslam_jax.attacks.centred import find_centres, ray_cloud_attack
+from privslam_jax.attacks.two_peaks import TwoPeakResult, assign_pairs, line_pairs, two_peak_attack, two_peaks
