@@ -19,6 +19,20 @@ sys.path.insert(0, str(Path(__file__).parent))
 from test_line2point import street_points  # noqa: E402
 
 
+def clustered_points(clusters: int, size: int, extent: float, spacing: float, seed: int = 0) -> np.ndarray:
+    """``clusters`` clusters of ``size`` points within 5 cm of their centre; centres uniform in
+    ``[-extent, extent]³`` and at least ``spacing`` apart."""
+    rng = np.random.default_rng(seed)
+    centres: list[np.ndarray] = []
+    while len(centres) < clusters:
+        c = rng.uniform(-extent, extent, 3)
+        if all(np.linalg.norm(c - o) > spacing for o in centres):
+            centres.append(c)
+    offs = rng.normal(size=(clusters, size, 3))
+    offs *= 0.05 * rng.uniform(0.2, 1.0, (clusters, size, 1)) / np.linalg.norm(offs, axis=2, keepdims=True)
+    return (np.asarray(centres)[:, None] + offs).reshape(-1, 3)
+
+
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_centres_of_ray_and_sphere_clouds_are_found_and_random_lines_have_none(dtype):
     """Reference: the anchors ``ray_lift`` drew (``ray_anchors`` with the key's first split) and the
@@ -49,15 +63,7 @@ def test_the_vote_across_centres_recovers_clustered_points_exactly_where_line2po
     ray cloud of 4 anchors.  A point's cluster mates at other anchors put lines within ~10 cm of it, and
     nothing else comes near, so the vote must return nearly every point to within 0.2 m, while
     Line2Point puts every estimate on an anchor."""
-    rng = np.random.default_rng(0)
-    centres = []
-    while len(centres) < 40:
-        c = rng.uniform(-40, 40, 3)
-        if all(np.linalg.norm(c - o) > 10 for o in centres):
-            centres.append(c)
-    offs = rng.normal(size=(40, 8, 3))
-    offs *= 0.05 * rng.uniform(0.2, 1.0, (40, 8, 1)) / np.linalg.norm(offs, axis=2, keepdims=True)
-    pts = (np.asarray(centres)[:, None] + offs).reshape(-1, 3)
+    pts = clustered_points(40, 8, extent=40.0, spacing=10.0)
     lines = ray_lift(pts, fixed_key(1), num_anchors=4)
     rec, found, labels = ray_cloud_attack(lines)
     assert len(found) == 4 and (labels >= 0).all()

@@ -18,6 +18,7 @@ from privslam_jax.attacks.two_peaks import assign_pairs, line_pairs, two_peak_at
 from privslam_jax.privacy.lift import fixed_key, paired_lift, pairing
 
 sys.path.insert(0, str(Path(__file__).parent))
+from test_centred_attack import clustered_points  # noqa: E402
 from test_line2point import street_points  # noqa: E402
 
 
@@ -56,15 +57,7 @@ def test_both_points_of_clustered_pairs_come_back_and_the_coin_costs_half():
     each line runs through the two clusters of its points and its density has its two peaks there.
     With the oracle assignment (swap ratio 0) nearly every point comes back within 0.2 m; with a fair
     coin per pair about half; Line2Point (one peak per line) far less (measured 96 %, 44 %, 13 %)."""
-    rng = np.random.default_rng(0)
-    centres = []
-    while len(centres) < 30:
-        c = rng.uniform(-30, 30, 3)
-        if all(np.linalg.norm(c - o) > 8 for o in centres):
-            centres.append(c)
-    offs = rng.normal(size=(30, 10, 3))
-    offs *= 0.05 * rng.uniform(0.2, 1.0, (30, 10, 1)) / np.linalg.norm(offs, axis=2, keepdims=True)
-    pts = (np.asarray(centres)[:, None] + offs).reshape(-1, 3)
+    pts = clustered_points(30, 10, extent=30.0, spacing=8.0)
     lines = paired_lift(pts, fixed_key(5))
     res = two_peak_attack(lines)
     within = {}

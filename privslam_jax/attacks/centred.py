@@ -33,22 +33,10 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float, Int
 
+from privslam_jax.attacks._host import host_lines
 from privslam_jax.types import LineCloud
 
 __all__ = ["find_centres", "ray_cloud_attack"]
-
-
-def _unit_lines(lines: LineCloud) -> tuple[np.ndarray, np.ndarray]:
-    """``(a, d)`` in float64: unit directions and closest points to the origin ``a = d × m``."""
-    d = np.asarray(lines.directions, np.float64)
-    m = np.asarray(lines.moments, np.float64)
-    if d.ndim != 2 or d.shape[1] != 3 or m.shape != d.shape or len(d) < 2:
-        raise ValueError(f"need at least 2 lines of shape (N, 3), got directions {d.shape}, moments {m.shape}")
-    norm = np.linalg.norm(d, axis=1, keepdims=True)
-    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(m)) and np.all(norm > 0)):
-        raise ValueError("line cloud contains NaN/inf or zero directions")
-    d = d / norm
-    return np.cross(d, m), d
 
 
 def find_centres(
@@ -65,7 +53,7 @@ def find_centres(
     Returns ``(centres, labels)``: ``(K, 3)`` float64 centres and, per line, the index of its centre or
     ``-1`` (a line through no centre, e.g. every line of a random lift).
     """
-    a, d = _unit_lines(lines)
+    a, d = host_lines(lines, 2)
     n = len(a)
     if tol is None:
         eps = 1e-9 if np.asarray(lines.directions).dtype == np.float64 else 1e-5
@@ -137,7 +125,7 @@ def ray_cloud_attack(
     if len(centres) < 2:
         raise ValueError(f"found {len(centres)} centre(s) where {min_lines}+ lines meet: not a ray cloud "
                          "(Line2Point attacks random lifts; a sphere cloud has one centre and no second one to vote)")
-    a, d = _unit_lines(lines)
+    a, d = host_lines(lines, 2)
     members = [np.flatnonzero(labels == k) for k in range(len(centres))]
     counts = [max(3, int(np.ceil(fraction * len(m)))) for m in members]
     offsets = np.zeros(len(a))

@@ -38,6 +38,7 @@ from jaxtyping import Float, Int
 from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
 
+from privslam_jax.attacks._host import host_lines
 from privslam_jax.types import LineCloud
 
 __all__ = ["TwoPeakResult", "assign_pairs", "line_pairs", "two_peak_attack", "two_peaks"]
@@ -96,15 +97,7 @@ def two_peak_attack(
 ) -> TwoPeakResult:
     """TPF on a line cloud (module docstring): both density peaks of every line.  Host numpy,
     ``O(N²)`` time, ``O(chunk_size · N)`` memory."""
-    d = np.asarray(lines.directions, np.float64)
-    m = np.asarray(lines.moments, np.float64)
-    if d.ndim != 2 or d.shape[1] != 3 or m.shape != d.shape or len(d) < 3:
-        raise ValueError(f"need at least 3 lines of shape (N, 3), got directions {d.shape}, moments {m.shape}")
-    norm = np.linalg.norm(d, axis=1, keepdims=True)
-    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(m)) and np.all(norm > 0)):
-        raise ValueError("line cloud contains NaN/inf or zero directions")
-    d = d / norm
-    a = np.cross(d, m)
+    a, d = host_lines(lines, 3)
     n = len(d)
     k = max(1, min(n - 2, int(min(max_neighbours, neighbour_fraction * n))))
     t1, t2 = np.zeros(n), np.zeros(n)
