@@ -78,3 +78,32 @@ def test_sphere_clouds_and_bad_input_are_refused():
     # all outliers: no pose is claimed
     res = localize_against_lines(np.random.default_rng(0).uniform(0, 480, (60, 2)), lines, K, max_iterations=200)
     assert not res.success
+
+
+def test_kitti_seq1_cameras_localise_against_the_lifted_colmap_map(shared):
+    """Real correspondences: every 10th camera of the KITTI ``seq1`` COLMAP problem (its own observations
+    of the map points), against the random-, paired- and ray-lifted map and PnP on the points; reference:
+    the problem's camera poses.  Bounds: 0.5° and 0.5 % of the median point depth for the camera centre."""
+    from privslam_jax.data.bal import bal_to_opencv, read_bal
+    from privslam_jax.types import LineCloud
+
+    prob = read_bal(shared / "reference" / "ba" / "kitti_seq1_colmap_optimum.bal.txt.bz2")
+    T_all, intr, uv_all = bal_to_opencv(prob)
+    X = prob.points
+    clouds = {lift.__name__: lift(X, fixed_key(0)) for lift in (random_lift, paired_lift, ray_lift)}
+    for c in range(0, prob.n_cameras, 10):
+        sel = prob.obs_cam == c
+        uv, pid = uv_all[sel], prob.obs_pt[sel]
+        K = np.array([[intr[c, 0], 0, intr[c, 2]], [0, intr[c, 1], intr[c, 3]], [0, 0, 1.0]])
+        Xc = X[pid] @ T_all[c, :3, :3].T + T_all[c, :3, 3]
+        depth = float(np.median(Xc[:, 2]))
+        results = {name: localize_against_lines(uv, LineCloud(directions=np.asarray(lines.directions)[pid],
+                                                                moments=np.asarray(lines.moments)[pid]), K)
+                   for name, lines in clouds.items()}
+        results["points"] = localize_against_points(uv, X[pid], K)
+        for name, res in results.items():
+            assert res.success, (c, name)
+            rot, _ = _errors(res.T_c_w, T_all[c])
+            centre = -res.T_c_w[:3, :3].T @ res.T_c_w[:3, 3]
+            true_centre = -T_all[c, :3, :3].T @ T_all[c, :3, 3]
+            assert rot <= 0.5 and np.linalg.norm(centre - true_centre) <= 0.005 * depth, (c, name, rot)

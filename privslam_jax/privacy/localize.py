@@ -141,10 +141,18 @@ def localize_against_lines(
     rng = np.random.default_rng(seed)
     best_T, best_in, it, needed = None, np.zeros(len(uv), bool), 0, max_iterations
     with jax.enable_x64(True):
-        args = tuple(jnp.asarray(x) for x in (uv, d, m, K))
+        # padded to a power of two with weight-0 rows (a line through the origin along z): one compiled
+        # refinement per size bucket, not per correspondence count
+        size = 1 << max(6, int(np.ceil(np.log2(len(uv)))))
+        pad = size - len(uv)
+        args = tuple(jnp.asarray(x) for x in (np.concatenate([uv, np.zeros((pad, 2))]),
+                                              np.concatenate([d, np.tile([0.0, 0.0, 1.0], (pad, 1))]),
+                                              np.concatenate([m, np.zeros((pad, 3))]), K))
 
         def refine(T: np.ndarray, inl: np.ndarray) -> np.ndarray:
-            Tr, _ = _refine(_to_se3(T[:3, :3], T[:3, 3]), *args, jnp.asarray(inl, jnp.float64), jnp.asarray(threshold))
+            w = np.zeros(len(args[0]))
+            w[: len(inl)] = inl
+            Tr, _ = _refine(_to_se3(T[:3, :3], T[:3, 3]), *args, jnp.asarray(w), jnp.asarray(threshold))
             return np.asarray(Tr.as_matrix())
 
         while it < min(needed, max_iterations):
