@@ -40,6 +40,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from privslam_jax._shared import shared_dir  # noqa: E402
+from privslam_jax.data.files import write_atomic  # noqa: E402
 from privslam_jax.attacks.centred import ray_cloud_attack  # noqa: E402
 from privslam_jax.attacks.gradient import GradientAttackConfig, gradient_attack  # noqa: E402
 from privslam_jax.attacks.line2point import Line2PointConfig, line2point  # noqa: E402
@@ -198,7 +199,7 @@ def main() -> None:
         )
     out = Path(cfg["out"])
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
+    write_atomic(out, "\n".join(lines) + "\n")
     print(f"wrote {out}")
 
 

@@ -36,7 +36,6 @@ import jaxlie
 import numpy as np
 from jaxtyping import Array, Float
 
-from privslam_jax.attacks.centred import find_centres
 from privslam_jax.solvers import DenseSystem, LMParams, dense_damped_solve, huber_rho, huber_weight, levenberg_marquardt
 from privslam_jax.types import LineCloud
 
@@ -127,12 +126,15 @@ def localize_against_lines(
         raise ValueError("keypoints, lines or intrinsics contain NaN or inf")
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     lines64 = LineCloud(directions=d, moments=m)
-    centres, labels = find_centres(lines64)
-    if len(centres) == 1 and np.mean(labels == 0) > 0.5:
-        raise ValueError(f"{np.mean(labels == 0):.0%} of the lines meet at one point (a sphere cloud): seen from one "
+    a = np.cross(d, m)
+    # one point shared by most lines (a sphere cloud)? the least-squares point nearest all lines, O(M)
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    common = np.linalg.lstsq(P.sum(0), np.einsum("nij,nj->i", P, a), rcond=None)[0]
+    through = np.linalg.norm(np.cross(common - a, d), axis=1) <= 1e-6 * (1.0 + float(np.abs(a).max()))
+    if np.mean(through) > 0.5:
+        raise ValueError(f"{np.mean(through):.0%} of the lines meet at one point (a sphere cloud): seen from one "
                          "point, the map fixes the camera's rotation and the direction of its position, not its distance; "
                          "localising against it needs the distance from elsewhere (e.g. a depth sensor)")
-    a = np.cross(d, m)
     far = 1e3 * (1.0 + float(np.abs(a).max()))
     origins = a - far * d
     rays = np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ np.linalg.inv(K).T
