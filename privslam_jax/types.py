@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 from flax import struct
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int, UInt8
 
 __all__ = ["Camera", "Trajectory", "PointCloud", "LineCloud", "Detections"]
 
@@ -127,6 +127,12 @@ class PointCloud:
     """RGB in ``[0, 1]`` or ``None``."""
     observations: Int[Array, " N"] | None = None
     """How many keyframes observe each point (SLAM maps) or ``None``."""
+    normals: Float[Array, "N 3"] | None = None
+    """Unit mean viewing direction of each point (SLAM maps: from the observing cameras to the point,
+    ORB-SLAM's map-point normal) or ``None``."""
+    descriptors: UInt8[Array, "N D"] | None = None
+    """One binary descriptor per point (SLAM maps: the 32-byte ORB descriptor the point was made
+    from), what a device matches its keypoints against to localise; or ``None``."""
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])

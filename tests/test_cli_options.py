@@ -39,7 +39,7 @@ def _check(main, argv: list[str], option: str, capsys) -> None:
 
 
 
-OWN_OUT = {"run", "detect", "slam"}
+OWN_OUT = {"run", "detect", "slam", "localize"}
 """Subcommands that claim ``--out`` (manifest.json) before they run."""
 
 PRIVSLAM_CASES = [
@@ -75,6 +75,10 @@ PRIVSLAM_CASES = [
     # lift, attack, eval-points
     (["lift", MISSING, "--method", "bogus"], "--method"),
     (["lift", MISSING, "--seed", "1.5"], "--seed"),
+    (["lift", MISSING, "--passes", "0"], "--passes"),
+    (["localize", MISSING, MISSING, "--every", "0"], "--every"),
+    (["localize", MISSING, MISSING, "--threshold", "nan"], "--threshold"),
+    (["localize", MISSING, MISSING, "--min-inliers", "0"], "--min-inliers"),
     (["attack", MISSING, "--method", "bogus"], "--method"),
     (["attack", MISSING, "--refine", "-1"], "--refine"),
     (["eval-points", MISSING, MISSING, "--method", "bogus"], "--method"),

@@ -6,7 +6,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from privslam_jax.data.ply import load_line_cloud, load_point_cloud, read_ply, save_line_cloud, save_point_cloud
+from privslam_jax.data.ply import (
+    load_descriptors,
+    load_line_cloud,
+    load_point_cloud,
+    read_ply,
+    save_line_cloud,
+    save_point_cloud,
+    write_ply,
+)
 from privslam_jax.types import LineCloud, PointCloud
 
 
@@ -15,7 +23,10 @@ def _cloud(n=50, seed=0):
     xyz = rng.normal(size=(n, 3)).astype(np.float32) * 10
     colors = rng.integers(0, 256, size=(n, 3)) / 255.0
     obs = rng.integers(1, 20, size=n).astype(np.int32)
-    return PointCloud(xyz=jnp.asarray(xyz), colors=jnp.asarray(colors, jnp.float32), observations=jnp.asarray(obs))
+    nrm = rng.normal(size=(n, 3)).astype(np.float32)
+    desc = rng.integers(0, 256, size=(n, 32), dtype=np.uint8)
+    return PointCloud(xyz=jnp.asarray(xyz), colors=jnp.asarray(colors, jnp.float32), observations=jnp.asarray(obs),
+                      normals=jnp.asarray(nrm / np.linalg.norm(nrm, axis=1, keepdims=True)), descriptors=jnp.asarray(desc))
 
 
 @pytest.mark.parametrize("binary", [True, False])
@@ -27,7 +38,10 @@ def test_point_cloud_round_trip(tmp_path, binary):
     np.testing.assert_array_equal(np.asarray(back.xyz), np.asarray(cloud.xyz))
     np.testing.assert_allclose(np.asarray(back.colors), np.asarray(cloud.colors), atol=1e-7)
     np.testing.assert_array_equal(np.asarray(back.observations), np.asarray(cloud.observations))
-    head = path.read_bytes()[:200]
+    np.testing.assert_allclose(np.asarray(back.normals), np.asarray(cloud.normals), rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(back.descriptors), np.asarray(cloud.descriptors))
+    np.testing.assert_array_equal(load_descriptors(path), np.asarray(cloud.descriptors))
+    head = path.read_bytes()[:400]
     assert (b"binary_little_endian" in head) == binary
 
 
@@ -35,7 +49,8 @@ def test_point_cloud_without_optional_fields(tmp_path):
     xyz = jnp.asarray(np.arange(12, dtype=np.float32).reshape(4, 3))
     save_point_cloud(tmp_path / "p.ply", PointCloud(xyz=xyz))
     back = load_point_cloud(tmp_path / "p.ply")
-    assert back.colors is None and back.observations is None
+    assert back.colors is None and back.observations is None and back.normals is None and back.descriptors is None
+    assert load_descriptors(tmp_path / "p.ply") is None
     np.testing.assert_array_equal(np.asarray(back.xyz), np.asarray(xyz))
     assert len(read_ply(tmp_path / "p.ply")["vertex"].dtype.names) == 3
 
@@ -136,3 +151,30 @@ def test_errors(tmp_path):
     )
     with pytest.raises(ValueError, match="zero length"):
         load_line_cloud(tmp_path / "zero.ply")
+
+
+def test_line_cloud_descriptors_round_trip_and_bad_descriptor_elements(tmp_path):
+    """Row i of the descriptor element belongs to line i; a count or value that does not fit is refused."""
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(20, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    lines = LineCloud(directions=d, moments=np.cross(rng.normal(size=(20, 3)), d))
+    desc = rng.integers(0, 256, size=(20, 32), dtype=np.uint8)
+    save_line_cloud(tmp_path / "l.ply", lines, descriptors=desc)
+    np.testing.assert_array_equal(load_descriptors(tmp_path / "l.ply"), desc)
+    assert len(load_line_cloud(tmp_path / "l.ply")) == 20  # readers that ignore the element are unaffected
+    with pytest.raises(ValueError, match="uint8 of shape"):
+        save_line_cloud(tmp_path / "x.ply", lines, descriptors=desc[:19])
+    el = read_ply(tmp_path / "l.ply")
+    write_ply(tmp_path / "short.ply", {"vertex": el["vertex"], "edge": el["edge"], "descriptor": el["descriptor"][:19]})
+    with pytest.raises(ValueError, match="19 descriptors for 20 edge rows"):
+        load_descriptors(tmp_path / "short.ply")
+    wide = np.zeros(20, np.dtype([("b0", "i4"), ("b1", "i4")]))
+    wide["b1"][3] = 300
+    write_ply(tmp_path / "wide.ply", {"vertex": el["vertex"], "edge": el["edge"], "descriptor": wide})
+    with pytest.raises(ValueError, match="outside 0..255"):
+        load_descriptors(tmp_path / "wide.ply")
+    flt = np.zeros(20, np.dtype([("b0", "f4")]))
+    write_ply(tmp_path / "float.ply", {"vertex": el["vertex"], "edge": el["edge"], "descriptor": flt})
+    with pytest.raises(ValueError, match="integer properties"):
+        load_descriptors(tmp_path / "float.ply")

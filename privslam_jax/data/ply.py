@@ -6,7 +6,11 @@ Only scalar properties are supported (list properties, as in mesh faces, raise a
 
 * **Point cloud**: element ``vertex`` with ``x y z`` (``float`` for float32 input, ``double``
   otherwise), optional ``red green blue`` (``uchar``; colours in ``[0, 1]`` are stored as
-  ``round(255·c)``) and optional ``observations`` (``int``).
+  ``round(255·c)``), optional ``nx ny nz`` (the points' unit mean viewing directions, the type of
+  ``x``) and optional ``observations`` (``int``).
+* **Descriptors** (both kinds of cloud, optional): element ``descriptor`` with one row per point
+  or line and ``uchar`` properties ``b0 … b{D-1}`` (a SLAM map's 32-byte ORB descriptors), row
+  ``i`` for point or line ``i``.  Readers that do not know the element skip it.
 * **Line cloud**: line ``i`` is the segment from vertex ``2i`` to vertex ``2i+1`` plus the
   element ``edge`` row ``i`` = ``(vertex1, vertex2) = (2i, 2i+1)``.  The exported segment is the
   *canonical* unit segment: it starts at the line's closest point to the origin ``c = d × m``
@@ -47,6 +51,7 @@ __all__ = [
     "load_point_cloud",
     "save_line_cloud",
     "load_line_cloud",
+    "load_descriptors",
 ]
 
 _PLY_TYPES: dict[str, str] = {
@@ -225,7 +230,8 @@ def _as_float(path: Path, x: np.ndarray, what: str, dtype: np.dtype) -> np.ndarr
 
 
 def save_point_cloud(path: str | os.PathLike, cloud: PointCloud, *, binary: bool = True) -> None:
-    """Save a :class:`PointCloud` as PLY vertices (``x y z [red green blue] [observations]``)."""
+    """Save a :class:`PointCloud` as PLY vertices (``x y z [red green blue] [nx ny nz] [observations]``) and, if it
+    has descriptors, the ``descriptor`` element."""
     xyz = np.asarray(cloud.xyz)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"point cloud xyz must have shape (N, 3), got {xyz.shape}")
@@ -233,6 +239,8 @@ def save_point_cloud(path: str | os.PathLike, cloud: PointCloud, *, binary: bool
     fields: list[tuple[str, str]] = [("x", ftype), ("y", ftype), ("z", ftype)]
     if cloud.colors is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    if cloud.normals is not None:
+        fields += [("nx", ftype), ("ny", ftype), ("nz", ftype)]
     if cloud.observations is not None:
         fields += [("observations", "i4")]
     arr = np.zeros(xyz.shape[0], np.dtype(fields))
@@ -242,9 +250,55 @@ def save_point_cloud(path: str | os.PathLike, cloud: PointCloud, *, binary: bool
         rgb = np.clip(np.rint(np.asarray(cloud.colors, np.float64) * 255.0), 0, 255).astype(np.uint8)
         for k, c in enumerate(("red", "green", "blue")):
             arr[c] = rgb[:, k]
+    if cloud.normals is not None:
+        nrm = np.asarray(cloud.normals)
+        if nrm.shape != xyz.shape:
+            raise ValueError(f"normals must have the points' shape {xyz.shape}, got {nrm.shape}")
+        for k, c in enumerate(("nx", "ny", "nz")):
+            arr[c] = nrm[:, k]
     if cloud.observations is not None:
         arr["observations"] = np.asarray(cloud.observations)
-    write_ply(path, {"vertex": arr}, binary=binary, comments=("privslam_jax point cloud",))
+    elements = {"vertex": arr}
+    if cloud.descriptors is not None:
+        elements["descriptor"] = _descriptor_rows(cloud.descriptors, xyz.shape[0])
+    write_ply(path, elements, binary=binary, comments=("privslam_jax point cloud",))
+
+
+def _descriptor_rows(descriptors, n: int) -> np.ndarray:
+    """The ``descriptor`` element: ``(n, D)`` uint8 descriptors as rows of ``uchar`` ``b0 … b{D-1}``."""
+    desc = np.asarray(descriptors)
+    if desc.ndim != 2 or desc.shape[0] != n or desc.dtype != np.uint8:
+        raise ValueError(f"descriptors must be uint8 of shape ({n}, D), got {desc.dtype} {desc.shape}")
+    rows = np.zeros(n, np.dtype([(f"b{k}", "u1") for k in range(desc.shape[1])]))
+    for k in range(desc.shape[1]):
+        rows[f"b{k}"] = desc[:, k]
+    return rows
+
+
+def load_descriptors(path: str | os.PathLike) -> np.ndarray | None:
+    """The ``(N, D)`` uint8 descriptors of a point or line cloud, or ``None`` if it has none.
+
+    ``N`` must be the number of edges (a line cloud) or else of vertices (a point cloud).
+    """
+    path = Path(path)
+    return _descriptors(path, read_ply(path))
+
+
+def _descriptors(path: Path, elements: dict[str, np.ndarray]) -> np.ndarray | None:
+    if "descriptor" not in elements:
+        return None
+    e = elements["descriptor"]
+    names = e.dtype.names or ()
+    if not names or any(e.dtype[c].kind not in "iu" for c in names):
+        raise input_error(path, "the descriptor element must hold integer properties b0 … b{D-1}")
+    desc = np.stack([e[c] for c in names], axis=-1).reshape(len(e), len(names))
+    if desc.size and (desc.min() < 0 or desc.max() > 255):
+        raise input_error(path, "descriptor values outside 0..255")
+    what = "edge" if "edge" in elements else "vertex"
+    n = len(elements[what]) if what in elements else 0
+    if len(desc) != n:
+        raise input_error(path, f"{len(desc)} descriptors for {n} {what} rows")
+    return desc.astype(np.uint8)
 
 
 def load_point_cloud(path: str | os.PathLike) -> PointCloud:
@@ -272,15 +326,23 @@ def load_point_cloud(path: str | os.PathLike) -> PointCloud:
             raise input_error(path, "vertex observations are not int32 integers")
         obs = jnp.asarray(o.astype(np.int32))
     fdt = _float_dtype()
+    normals = None
+    if all(c in names for c in ("nx", "ny", "nz")):
+        with np.errstate(invalid="ignore"):
+            normals = _as_float(path, np.stack([v["nx"], v["ny"], v["nz"]], axis=-1).astype(np.float64), "vertex normals", fdt)
+    desc = _descriptors(path, elements)
     return PointCloud(
         xyz=jnp.asarray(_as_float(path, xyz, "vertex coordinates", fdt)),
         colors=None if colors is None else jnp.asarray(_as_float(path, colors, "vertex colours", fdt)),
         observations=obs,
+        normals=None if normals is None else jnp.asarray(normals),
+        descriptors=None if desc is None else jnp.asarray(desc),
     )
 
 
-def save_line_cloud(path: str | os.PathLike, lines: LineCloud, *, binary: bool = True) -> None:
-    """Save a :class:`LineCloud` as canonical unit segments (vertices ``2i``, ``2i+1``) plus edges."""
+def save_line_cloud(path: str | os.PathLike, lines: LineCloud, *, descriptors=None, binary: bool = True) -> None:
+    """Save a :class:`LineCloud` as canonical unit segments (vertices ``2i``, ``2i+1``) plus edges,
+    and the ``(N, D)`` uint8 ``descriptors`` of its lines if given (what localisation matches)."""
     d = np.asarray(lines.directions, np.float64)
     m = np.asarray(lines.moments, np.float64)
     if d.ndim != 2 or d.shape[1] != 3 or m.shape != d.shape:
@@ -301,7 +363,10 @@ def save_line_cloud(path: str | os.PathLike, lines: LineCloud, *, binary: bool =
     edge = np.zeros(d.shape[0], np.dtype([("vertex1", "i4"), ("vertex2", "i4")]))
     edge["vertex1"] = 2 * np.arange(d.shape[0])
     edge["vertex2"] = 2 * np.arange(d.shape[0]) + 1
-    write_ply(path, {"vertex": vert, "edge": edge}, binary=binary,
+    elements = {"vertex": vert, "edge": edge}
+    if descriptors is not None:
+        elements["descriptor"] = _descriptor_rows(descriptors, d.shape[0])
+    write_ply(path, elements, binary=binary,
               comments=("privslam_jax line cloud: line i = edge i = unit segment from its closest point to the origin",))
 
 

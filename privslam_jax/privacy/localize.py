@@ -18,6 +18,13 @@ and 6 correspondences determine the pose.
    pixel distance from ``u`` to the line's image ``l = K⁻ᵀ m_c`` (``m_c = R m + t × R d``, the line's
    moment in the camera frame: the projected line in normalised coordinates).
 
+4. **Matching** (:func:`localize_image`): a query image's ORB features (the SLAM front end's
+   extractor, :func:`~privslam_jax.slam.frontend.extract_orb`) are matched to the descriptors that
+   travel with the lines (``privslam lift`` keeps a SLAM map's ORB descriptors, row ``i`` for line
+   ``i``): brute-force Hamming, Lowe's ratio test, one keypoint per line.  Descriptors are what a
+   line cloud must publish to be localised against, and they are an attack surface of their own
+   (feature inversion, Pittaluga et al., CVPR 2019); the line cloud hides only the geometry.
+
 A sphere cloud cannot be localised against this way: all its lines meet at the centroid, so the map is
 a central camera and the query's distance from the centroid is not observable (the sphere-cloud paper
 takes it from a depth sensor); :func:`localize_against_lines` refuses it.
@@ -39,7 +46,8 @@ from jaxtyping import Array, Float
 from privslam_jax.solvers import DenseSystem, LMParams, dense_damped_solve, huber_rho, huber_weight, levenberg_marquardt
 from privslam_jax.types import LineCloud
 
-__all__ = ["Localization", "localize_against_lines", "localize_against_points", "line_reprojection_errors"]
+__all__ = ["Localization", "localize_against_lines", "localize_against_points", "localize_image", "match_to_map",
+           "line_reprojection_errors"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -193,3 +201,41 @@ def localize_against_points(
     T[:3, :3], T[:3, 3] = pose.R, pose.t
     inl = np.asarray(info["inliers"], bool)
     return Localization(T_c_w=T, inliers=inl, iterations=int(info["iterations"]), success=bool(inl.sum() >= min_inliers))
+
+
+def match_to_map(query: np.ndarray, map_descriptors: np.ndarray, *, ratio: float = 0.8, max_distance: int = 64
+                 ) -> np.ndarray:
+    """``(M, 2)`` pairs ``(keypoint, map row)``: each query descriptor's nearest map descriptor (Hamming) if it
+    is within ``max_distance`` bits and closer than ``ratio`` × the second nearest; one keypoint per map row."""
+    from privslam_jax.slam.frontend import ratio_matches
+
+    q, md = np.asarray(query), np.asarray(map_descriptors)
+    if q.dtype != np.uint8 or md.dtype != np.uint8 or q.ndim != 2 or md.ndim != 2 or q.shape[1] != md.shape[1]:
+        raise ValueError(f"descriptors must be uint8 (N, D) with one D; got {q.dtype} {q.shape} and {md.dtype} {md.shape}")
+    pairs = ratio_matches(q, md, ratio, max_distance)
+    return pairs[np.argsort(pairs[:, 0], kind="stable")]
+
+
+def localize_image(
+    image: np.ndarray, lines: LineCloud, descriptors: np.ndarray, K: Float[np.ndarray, "3 3"], *,
+    n_features: int = 2000, ratio: float = 0.8, max_distance: int = 64, **ransac,
+) -> tuple[Localization, np.ndarray, np.ndarray]:
+    """Localise one image against a line cloud whose line ``i`` carries ``descriptors[i]``.
+
+    Returns ``(localization, uv, line_ids)``: the matched keypoints (pixels) and their lines
+    (``localization.inliers`` indexes them).  ``ransac``: keyword arguments of :func:`localize_against_lines`.
+    Fewer than 6 matches give ``success=False`` (nothing to solve), not an error: the image may show
+    another place.
+    """
+    from privslam_jax.slam.frontend import OrbConfig, extract_orb, to_gray_u8
+
+    desc = np.asarray(descriptors)
+    if len(desc) != len(lines):
+        raise ValueError(f"{len(desc)} descriptors for {len(lines)} lines")
+    feats = extract_orb(to_gray_u8(image), OrbConfig(n_features=n_features))
+    pairs = match_to_map(feats.desc, desc, ratio=ratio, max_distance=max_distance)
+    uv, ids = feats.uv[pairs[:, 0]], pairs[:, 1]
+    if len(ids) < max(6, ransac.get("min_inliers", 12)):
+        return Localization(T_c_w=np.eye(4), inliers=np.zeros(len(ids), bool), iterations=0, success=False), uv, ids
+    sub = LineCloud(directions=np.asarray(lines.directions, np.float64)[ids], moments=np.asarray(lines.moments, np.float64)[ids])
+    return localize_against_lines(uv, sub, K, **ransac), uv, ids

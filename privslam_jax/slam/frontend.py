@@ -32,6 +32,7 @@ __all__ = [
     "extract_orb",
     "hamming_pairs",
     "match_descriptors",
+    "ratio_matches",
     "rotation_consistent",
     "search_by_projection",
     "stereo_depths",
@@ -203,6 +204,25 @@ def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray, bins: int = 30
     return np.isin(b, top)
 
 
+def ratio_matches(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8, max_dist: int = TH_LOW) -> np.ndarray:
+    """Brute-force Hamming matches ``a → b`` that pass ``max_dist`` and Lowe's ratio test, one per ``b`` row
+    (the closest); ``(M, 2)`` int index pairs ``(i_a, i_b)``, in no particular order."""
+    if len(desc_a) == 0 or len(desc_b) < 2:
+        return np.zeros((0, 2), np.int64)
+    knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(np.ascontiguousarray(desc_a), np.ascontiguousarray(desc_b), k=2)
+    q = np.array([m[0].queryIdx for m in knn if len(m) == 2], np.int64)
+    t = np.array([m[0].trainIdx for m in knn if len(m) == 2], np.int64)
+    d1 = np.array([m[0].distance for m in knn if len(m) == 2])
+    d2 = np.array([m[1].distance for m in knn if len(m) == 2])
+    ok = (d1 <= max_dist) & (d1 < ratio * d2)
+    q, t, d1 = q[ok], t[ok], d1[ok]
+    # one match per b row: keep the smallest distance
+    order = np.lexsort((d1, t))
+    first = np.r_[True, np.diff(t[order]) != 0] if len(order) else np.zeros(0, bool)
+    sel = order[first]
+    return np.stack([q[sel], t[sel]], axis=1).reshape(-1, 2)
+
+
 def match_descriptors(
     fa: Features,
     fb: Features,
@@ -219,23 +239,8 @@ def match_descriptors(
     """
     ia = np.flatnonzero(mask_a) if mask_a is not None else np.arange(len(fa))
     ib = np.flatnonzero(mask_b) if mask_b is not None else np.arange(len(fb))
-    if ia.size == 0 or ib.size < 2:
-        return np.zeros((0, 2), np.int64)
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    knn = bf.knnMatch(fa.desc[ia], fb.desc[ib], k=2)
-    q = np.array([m[0].queryIdx for m in knn if len(m) == 2], np.int64)
-    t = np.array([m[0].trainIdx for m in knn if len(m) == 2], np.int64)
-    d1 = np.array([m[0].distance for m in knn if len(m) == 2])
-    d2 = np.array([m[1].distance for m in knn if len(m) == 2])
-    ok = (d1 <= max_dist) & (d1 < ratio * d2)
-    q, t, d1 = q[ok], t[ok], d1[ok]
-    if q.size == 0:  # nothing passed the distance and ratio tests
-        return np.zeros((0, 2), np.int64)
-    # one match per train keypoint: keep the smallest distance
-    order = np.lexsort((d1, t))
-    first = np.r_[True, np.diff(t[order]) != 0]
-    sel = order[first]
-    pairs = np.stack([ia[q[sel]], ib[t[sel]]], axis=1)
+    pairs = ratio_matches(fa.desc[ia], fb.desc[ib], ratio, max_dist)
+    pairs = np.stack([ia[pairs[:, 0]], ib[pairs[:, 1]]], axis=1)
     if check_orientation and len(pairs):
         pairs = pairs[rotation_consistent(fa.angle[pairs[:, 0]], fb.angle[pairs[:, 1]])]
     return pairs[np.argsort(pairs[:, 0], kind="stable")]

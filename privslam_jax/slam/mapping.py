@@ -305,12 +305,14 @@ class Map:
         return ids[order], counts[ids][order]
 
     def point_cloud(self) -> PointCloud:
-        """The good map points with their observation counts."""
+        """The good map points with their observation counts, viewing normals and ORB descriptors."""
         good = ~self.bad & (self.n_obs > 0)
         import jax.numpy as jnp
 
         return PointCloud(xyz=jnp.asarray(self.xyz[good], jnp.float32),
-                          observations=jnp.asarray(self.n_obs[good], jnp.int32))
+                          observations=jnp.asarray(self.n_obs[good], jnp.int32),
+                          normals=jnp.asarray(self.normal[good], jnp.float32),
+                          descriptors=jnp.asarray(self.desc[good]))
 
 
 # ----------------------------------------------------------------------------------------------
