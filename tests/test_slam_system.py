@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from privslam_jax.data.ply import load_point_cloud
 from privslam_jax.metrics.trajectory import ate
 from privslam_jax.slam.system import Slam, SlamConfig, run_slam
 from privslam_jax.types import Camera
@@ -120,7 +121,9 @@ def test_cli_on_kitti_00(shared, tmp_path):
     assert m["frames"] == 5 and m["tracked"] == 5  # every frame of KITTI 00 0-4 is tracked
     for key in ("fps", "ate_rmse_se3", "ate_rmse_sim3", "rpe_trans", "rpe_rot"):
         assert key in m
-    assert (out / "map.ply").stat().st_size > 0
+    cloud = load_point_cloud(out / "map.ply")  # with what localisation needs: ORB descriptors, viewing normals
+    assert cloud.descriptors.shape == (len(cloud), 32) and cloud.descriptors.dtype == np.uint8
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(cloud.normals), axis=1), 1.0, atol=1e-5)
     assert (out / "keyframes.txt").is_file()
     assert (out / "trajectory_xz.png").stat().st_size > 0 and (out / "ate_over_time.png").stat().st_size > 0
 
