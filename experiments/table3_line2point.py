@@ -64,18 +64,20 @@ def get_config() -> dict:
     }
 
 
-def synthetic_map(cfg: dict) -> np.ndarray:
-    """Sparse map from the synthetic world: ORB keypoints on object-free renders, back-projected."""
+def synthetic_map(cfg: dict, with_descriptors: bool = False):
+    """Sparse map from the synthetic world: ORB keypoints on object-free renders, back-projected;
+    ``(points, their ORB descriptors, the centre of the camera that saw each, the sequence)`` with
+    ``with_descriptors``."""
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
     seq = make_sequence(SynthConfig(num_frames=cfg["synthetic_frames"], object_density=0.0, seed=0))
     cam = seq.camera
     orb = cv2.ORB_create(nfeatures=cfg["orb_features"])
-    pts = []
+    pts, descs, views = [], [], []
     for i in range(0, len(seq), cfg["synthetic_stride"]):
         f = seq[i]
         grey = cv2.cvtColor((np.clip(f.background, 0, 1) * 255).astype(np.uint8), cv2.COLOR_RGB2GRAY)
-        kps = orb.detect(grey, None)
+        kps, desc = orb.detectAndCompute(grey, None)
         if not kps:
             continue
         uv = np.array([k.pt for k in kps])
@@ -83,12 +85,15 @@ def synthetic_map(cfg: dict) -> np.ndarray:
         zz = z[np.clip(np.rint(uv[:, 1]).astype(int), 0, z.shape[0] - 1), np.clip(np.rint(uv[:, 0]).astype(int), 0, z.shape[1] - 1)]
         ok = (zz > 0) & (zz < cfg["max_depth"])
         uv, zz = uv[ok], zz[ok]
+        descs.append(desc[ok])
         p_c = np.stack([(uv[:, 0] - cam.cx) / cam.fx * zz, (uv[:, 1] - cam.cy) / cam.fy * zz, zz], 1)
         T = f.T_w_c
         pts.append(p_c @ T[:3, :3].T + T[:3, 3])
+        views.append(np.tile(T[:3, 3], (len(p_c), 1)))
     p = np.concatenate(pts)
     _, keep = np.unique(np.floor(p / cfg["voxel"]).astype(np.int64), axis=0, return_index=True)
-    return p[np.sort(keep)]
+    keep = np.sort(keep)
+    return (p[keep], np.concatenate(descs)[keep], np.concatenate(views)[keep], seq) if with_descriptors else p[keep]
 
 
 def kitti_map() -> np.ndarray | None:

@@ -6,6 +6,7 @@ import json
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from privslam_jax.cli import main
 from privslam_jax.data.ply import load_line_cloud, load_point_cloud, read_ply, save_point_cloud
@@ -108,3 +109,25 @@ def test_lift_reads_bal_points(tmp_path, capsys):
     assert np.max(np.linalg.norm(np.cross(pts, d) - m, axis=1)) < 1e-4
     assert main(["lift", str(tmp_path / "nope.bal"), "--out", str(tmp_path / "x.ply")]) == 2
     assert "nope.bal" in capsys.readouterr().err
+
+
+def test_lift_keeps_descriptors_and_the_optimised_lift_runs(tmp_path, capsys):
+    """Line i keeps point i's descriptor (what ``privslam localize`` matches); ``--method optimised`` uses the
+    cloud's normals as viewing directions and still puts point i on line i."""
+    from privslam_jax.data.ply import load_descriptors
+
+    pts = _street()
+    rng = np.random.default_rng(1)
+    desc = rng.integers(0, 256, (len(pts), 32), dtype=np.uint8)
+    nrm = np.tile([0.0, 1.0, 0.0], (len(pts), 1)).astype(np.float32)
+    save_point_cloud(tmp_path / "p.ply", PointCloud(xyz=jnp.asarray(pts), normals=jnp.asarray(nrm), descriptors=jnp.asarray(desc)))
+    for method in ("random", "optimised"):
+        out = tmp_path / f"{method}.ply"
+        assert main(["lift", str(tmp_path / "p.ply"), "--out", str(out), "--method", method, "--passes", "3", "--seed", "1"]) == 0
+        assert "keeps point i's descriptor (32 bytes)" in capsys.readouterr().out
+        np.testing.assert_array_equal(load_descriptors(out), desc)
+        lines = load_line_cloud(out)
+        d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+        assert np.max(np.linalg.norm(np.cross(pts, d) - m, axis=1)) < 1e-3
+    with pytest.raises(SystemExit):  # argparse refuses a non-positive --passes
+        main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "x.ply"), "--passes", "0"])

@@ -6,9 +6,12 @@ line's closest point to the origin) and edge ``i``; it corresponds to point ``i`
 ``--method paired``: paired-point lifting (Lee et al., CVPR 2023), one line through each random
 pair of points; ``--method ray``: ray clouds (Moon et al., CVPR 2024), each line through its point
 and a random one of ``--anchors`` k-means centres of the map; ``--method sphere``: sphere clouds
-(Moon et al., BMVC 2024), every line through the map's centroid.  See docs/privacy.md for what
-each one hides and what it costs.  POINTS may also be a BAL problem (``*.bal``, ``*.bal.txt``, optionally ``.bz2``):
-its 3D points are lifted.  Without ``--seed`` the key comes from OS entropy (the secure default); a seed
+(Moon et al., BMVC 2024), every line through the map's centroid; ``--method optimised``: directions
+optimised against the gradient attack, kept away from the points' viewing directions when the PLY has
+normals (``nx ny nz``, as ``privslam slam``'s ``map.ply``) so they still serve localisation.  See
+docs/privacy.md for what each one hides and what it costs.  POINTS may also be a BAL problem (``*.bal``, ``*.bal.txt``, optionally ``.bz2``):
+its 3D points are lifted.  The points' descriptors (``privslam slam``'s ``map.ply`` carries ORB
+descriptors) go with their lines, so ``privslam localize`` can match query images against them.  Without ``--seed`` the key comes from OS entropy (the secure default); a seed
 makes the lift reproducible and is for experiments only.
 """
 
@@ -20,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from privslam_jax.argtypes import positive_int
+from privslam_jax.argtypes import positive_float, positive_int
 
 __all__ = ["add_parser", "run", "load_points"]
 
@@ -61,9 +64,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("points", type=Path, help="input point cloud: PLY, or a BAL problem (its points)")
     p.add_argument("--out", type=Path, required=True, help="output line cloud, PLY")
-    p.add_argument("--method", choices=("random", "paired", "ray", "sphere"), default="random",
+    p.add_argument("--method", choices=("random", "paired", "ray", "sphere", "optimised"), default="random",
                    help="lift (default random)")
     p.add_argument("--anchors", type=positive_int, default=8, help="anchors of --method ray (default 8)")
+    p.add_argument("--passes", type=positive_float, default=100.0,
+                   help="--method optimised: optimisation steps per point, on average (default 100)")
     p.add_argument("--seed", type=int, default=None, help="fixed seed (experiments only; default: OS entropy)")
     p.add_argument("--ascii", action="store_true", help="write ASCII PLY (default binary little-endian)")
     p.set_defaults(func=run)
@@ -80,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         sphere_lift,
         unique_points,
     )
+    from privslam_jax.privacy.optimised_lift import OptimisedLiftConfig, optimised_lift
 
     cloud = load_points(args.points)
     if args.seed is None:
@@ -88,11 +94,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"privslam lift: fixed seed {args.seed}: reproducible, NOT secret", file=sys.stderr)
         key = fixed_key(args.seed)
     lifts = {"random": random_lift, "paired": paired_lift, "sphere": sphere_lift,
-             "ray": lambda p, k: ray_lift(p, k, num_anchors=args.anchors)}
+             "ray": lambda p, k: ray_lift(p, k, num_anchors=args.anchors),
+             "optimised": lambda p, k: optimised_lift(p, k, viewing_directions=cloud.normals,
+                                                      config=OptimisedLiftConfig(passes=args.passes), progress=True)}
     lines = lifts[args.method](cloud.xyz, key)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_line_cloud(args.out, lines, binary=not args.ascii)
+    save_line_cloud(args.out, lines, descriptors=cloud.descriptors, binary=not args.ascii)
     first, _ = unique_points(np.asarray(cloud.xyz))
     repeated = "" if len(first) == len(cloud) else f"; {len(cloud) - len(first)} repeated points share their point's line"
-    print(f"lifted {len(cloud)} points to {len(lines)} lines ({args.method}{repeated}) -> {args.out}")
+    desc = "" if cloud.descriptors is None else f"; line i keeps point i's descriptor ({cloud.descriptors.shape[1]} bytes)"
+    print(f"lifted {len(cloud)} points to {len(lines)} lines ({args.method}{repeated}{desc}) -> {args.out}")
     return 0

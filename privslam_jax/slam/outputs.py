@@ -9,7 +9,8 @@ ground truth is read from ``…/poses/<id>.txt`` when present.  :func:`write_out
   map of the pose, ``-1`` none; ``#`` header): which poses of ``trajectory.txt`` are tracked and which
   share a world frame (evo reads ``trajectory.txt`` as is);
 * ``keyframes.txt`` — TUM poses of the keyframes;
-* ``map.ply`` — map points with their keyframe-observation counts;
+* ``map.ply`` — map points with their keyframe-observation counts, viewing normals and ORB descriptors
+  (what ``privslam lift`` and ``privslam localize`` need);
 * ``metrics.json`` — ``frames``, ``tracked``, ``lost_frames``, ``fps`` (all stages),
   ``tracking_fps`` (1 / median per-frame time of extraction + tracking, without local mapping),
   per-stage median times,
