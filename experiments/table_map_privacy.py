@@ -43,7 +43,6 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 
 configure_xla()
 
-import cv2  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
@@ -58,7 +57,8 @@ from privslam_jax.metrics.privacy import point_recovery_metrics  # noqa: E402
 from privslam_jax.privacy.lift import fixed_key, paired_lift, random_lift, ray_lift, sphere_lift  # noqa: E402
 from privslam_jax.privacy.optimised_lift import OptimisedLiftConfig, optimised_lift  # noqa: E402
 from privslam_jax.privacy.localize import localize_against_lines, localize_against_points, match_to_map  # noqa: E402
-from privslam_jax.slam.frontend import OrbConfig, extract_orb, match_descriptors, to_gray_u8  # noqa: E402
+from privslam_jax.slam.frontend import OrbConfig, extract_orb, to_gray_u8  # noqa: E402
+from privslam_jax.slam.known_poses import KnownPoseMapConfig, map_from_known_poses  # noqa: E402
 from privslam_jax.types import LineCloud  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "experiments"))
@@ -76,9 +76,7 @@ def get_config() -> dict:
         "gradient": GradientAttackConfig(),
         "optimised": OptimisedLiftConfig(),
         "query_features": 2000,  # ORB features per query frame
-        "dense_features": 10000,  # ORB features per map frame of the dense KITTI map
-        "dense_gaps": (2, 4, 6),  # each even frame is matched to the frames this many ahead
-        "dense_reprojection": 1.5,  # px, in both frames
+        "dense": KnownPoseMapConfig(),  # 10,000 ORB features per even frame, matched 2, 4 and 6 frames ahead
         "bal_every": 5,  # every 5th COLMAP camera is a query
         "success": (0.25, 2.0),  # metres, degrees
         "out": ROOT / "results" / "map_privacy.md",
@@ -87,16 +85,16 @@ def get_config() -> dict:
 
 # ---------------------------------------------------------------------------------------- maps
 def synthetic(cfg: dict):
-    """Map (a): points, descriptors, viewpoints, and queries ``(image, K, T_c_w)`` (the odd frames)."""
-    pts, desc, views, seq = synthetic_map(table3_config(), with_descriptors=True)
+    """Map (a): points, descriptors, viewing directions, and queries ``(image, K, T_c_w)`` (the odd frames)."""
+    pts, desc, centres, seq = synthetic_map(table3_config(), with_descriptors=True)
     K = np.asarray(seq.camera.K, np.float64)
     queries = [(seq[i].background, K, np.linalg.inv(seq[i].T_w_c)) for i in range(1, len(seq), 2)]
-    return pts, desc, views, queries
+    return pts, desc, pts - centres, queries
 
 
 def kitti_colmap(cfg: dict, shared: Path):
-    """Map (b): points, viewpoints (each point's first observing camera) and per-query correspondences
-    ``(uv, point ids, K, T_c_w)``."""
+    """Map (b): points, viewing directions (from each point's first observing camera) and per-query
+    correspondences ``(uv, point ids, K, T_c_w)``."""
     from privslam_jax.data.bal import bal_to_opencv, read_bal
 
     prob = read_bal(shared / "reference" / "ba" / "kitti_seq1_colmap_optimum.bal.txt.bz2")
@@ -108,59 +106,31 @@ def kitti_colmap(cfg: dict, shared: Path):
         queries.append((uv_all[sel], prob.obs_pt[sel], K, T_all[c]))
     centres = np.einsum("nji,nj->ni", T_all[:, :3, :3], -T_all[:, :3, 3])  # −Rᵀt per camera
     _, first = np.unique(prob.obs_pt, return_index=True)
-    views = centres[prob.obs_cam[first]]
-    return np.asarray(prob.points, np.float64), views, queries
+    pts = np.asarray(prob.points, np.float64)
+    return pts, pts - centres[prob.obs_cam[first]], queries
 
 
 def kitti_dense(cfg: dict, shared: Path):
-    """Map (c): known-pose triangulation of the even frames (points, descriptors, viewpoints); queries
-    ``(image, K, T_c_w)`` (the odd frames)."""
+    """Map (c): known-pose triangulation of the even frames (points, descriptors, viewing directions);
+    queries ``(image, K, T_c_w)`` (the odd frames)."""
     from privslam_jax.data.kitti import KittiSequence
 
     seq = KittiSequence(shared / "data" / "kitti_odometry" / "sequences" / "seq1", grey=True)
     K = np.asarray(seq.camera.K, np.float64)
-    T_cw = [np.linalg.inv(T) for T in np.asarray(seq.poses, np.float64)]
+    T_w_c = np.asarray(seq.poses, np.float64)
     even = list(range(0, len(seq), 2))
-    feats = {i: extract_orb(to_gray_u8(seq.image(i)), OrbConfig(n_features=cfg["dense_features"])) for i in even}
-    pts, descs, views = [], [], []
-    for i in even:
-        for j in (i + g for g in cfg["dense_gaps"]):
-            if j not in feats:
-                continue
-            pairs = match_descriptors(feats[i], feats[j], ratio=0.8)
-            if len(pairs) < 8:
-                continue
-            a, b = feats[i].uv[pairs[:, 0]], feats[j].uv[pairs[:, 1]]
-            Pi, Pj = K @ T_cw[i][:3], K @ T_cw[j][:3]
-            X = cv2.triangulatePoints(Pi, Pj, a.T, b.T)
-            X = (X[:3] / X[3]).T
-            ok = np.ones(len(X), bool)
-            centres = []
-            for P, T, uv in ((Pi, T_cw[i], a), (Pj, T_cw[j], b)):
-                Xc = X @ T[:3, :3].T + T[:3, 3]
-                proj = np.c_[X, np.ones(len(X))] @ P.T
-                err = np.linalg.norm(proj[:, :2] / proj[:, 2:] - uv, axis=1)
-                ok &= (Xc[:, 2] > 1.0) & (Xc[:, 2] < 80.0) & (err <= cfg["dense_reprojection"])
-                centres.append(-T[:3, :3].T @ T[:3, 3])
-            r1, r2 = X - centres[0], X - centres[1]
-            cosang = np.sum(r1 * r2, 1) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
-            ok &= cosang <= np.cos(np.deg2rad(1.0))
-            pts.append(X[ok])
-            descs.append(feats[i].desc[pairs[ok, 0]])
-            views.append(np.tile(centres[0], (int(ok.sum()), 1)))
-    p, dsc, vw = np.concatenate(pts), np.concatenate(descs), np.concatenate(views)
-    _, keep = np.unique(np.floor(p / 0.05).astype(np.int64), axis=0, return_index=True)
-    keep = np.sort(keep)
-    queries = [(seq.image(i), K, T_cw[i]) for i in range(1, len(seq), 2)]
-    return p[keep], dsc[keep], vw[keep], queries
+    cloud = map_from_known_poses([seq.image(i) for i in even], T_w_c[even], K, cfg["dense"])
+    queries = [(seq.image(i), K, np.linalg.inv(T_w_c[i])) for i in range(1, len(seq), 2)]
+    return (np.asarray(cloud.xyz, np.float64), np.asarray(cloud.descriptors), np.asarray(cloud.normals, np.float64),
+            queries)
 
 
 # ---------------------------------------------------------------------------------------- parts
-def lift(name: str, pts: np.ndarray, views: np.ndarray, cfg: dict) -> LineCloud:
+def lift(name: str, pts: np.ndarray, viewing: np.ndarray, cfg: dict) -> LineCloud:
     key = fixed_key(cfg["lift_seed"])
     fns = {"random": random_lift, "paired": paired_lift, "sphere": sphere_lift,
            "ray": lambda p, k: ray_lift(p, k, num_anchors=cfg["ray_anchors"]),
-           "optimised": lambda p, k: optimised_lift(p, k, viewing_directions=pts - views, config=cfg["optimised"],
+           "optimised": lambda p, k: optimised_lift(p, k, viewing_directions=viewing, config=cfg["optimised"],
                                                     progress=True)}
     return fns[name](jnp.asarray(pts, jnp.float32), key)
 
@@ -240,14 +210,14 @@ def localise(rep: str, pts: np.ndarray, lines: LineCloud | None, corr, cfg: dict
             "seconds": float(np.median(times)) if times else np.nan}
 
 
-def evaluate(scene: str, pts: np.ndarray, desc: np.ndarray | None, views: np.ndarray, queries, cfg: dict) -> list[dict]:
+def evaluate(scene: str, pts: np.ndarray, desc: np.ndarray | None, viewing: np.ndarray, queries, cfg: dict) -> list[dict]:
     corr = correspondences(queries, desc, cfg)
     rows = [{"scene": scene, "rep": "points (unprotected)", "size": len(pts), "lift_s": 0.0, "attack": None,
              "loc": localise("points", pts, None, corr, cfg)}]
     print(scene, rows[-1]["rep"], rows[-1]["loc"], flush=True)
     for name in LIFTS:
         t0 = time.perf_counter()
-        lines = lift(name, pts, views, cfg)
+        lines = lift(name, pts, viewing, cfg)
         lift_s = time.perf_counter() - t0
         att = attacks(name, lines, pts, cfg)
         best = max(att, key=lambda k: att[k][0]["within_0.5"])  # ties: the first listed
@@ -351,18 +321,18 @@ def main() -> None:
     cfg = get_config()
     t_start = time.perf_counter()
     rows, scenes = [], []
-    pts, desc, views, queries = synthetic(cfg)
+    pts, desc, viewing, queries = synthetic(cfg)
     scenes.append(("synthetic", f"Table 3's synthetic map, {len(pts)} points with ORB descriptors; {len(queries)} query frames (the odd ones)"))
-    rows += evaluate("synthetic", pts, desc, views, queries, cfg)
+    rows += evaluate("synthetic", pts, desc, viewing, queries, cfg)
     shared = shared_dir()
     if shared is not None and (shared / "reference" / "ba" / "kitti_seq1_colmap_optimum.bal.txt.bz2").is_file():
-        pts, views, queries = kitti_colmap(cfg, shared)
+        pts, viewing, queries = kitti_colmap(cfg, shared)
         scenes.append(("KITTI seq1 COLMAP", f"{len(pts)} points; {len(queries)} query cameras (every {cfg['bal_every']}th) with their own observations"))
-        rows += evaluate("KITTI seq1 COLMAP", pts, None, views, queries, cfg)
-        pts, desc, views, queries = kitti_dense(cfg, shared)
+        rows += evaluate("KITTI seq1 COLMAP", pts, None, viewing, queries, cfg)
+        pts, desc, viewing, queries = kitti_dense(cfg, shared)
         scenes.append(("KITTI seq1 dense", f"known-pose SfM of the 26 even frames, {len(pts)} points with ORB descriptors; "
                        f"{len(queries)} query frames (the odd ones, not in the map)"))
-        rows += evaluate("KITTI seq1 dense", pts, desc, views, queries, cfg)
+        rows += evaluate("KITTI seq1 dense", pts, desc, viewing, queries, cfg)
     out = Path(cfg["out"])
     out.parent.mkdir(parents=True, exist_ok=True)
     plot(rows, out.with_suffix(".png"))

@@ -203,3 +203,34 @@ def test_frames_localise_against_a_lifted_map_by_descriptor_api_and_cli(tmp_path
     save_line_cloud(tmp_path / "sphere.ply", LineCloud(directions=sphere.directions, moments=sphere.moments), descriptors=desc)
     assert main(["localize", str(tmp_path / "sphere.ply"), str(seq_dir), "--out", str(tmp_path / "loc3")]) == 2
     assert "sphere cloud" in capsys.readouterr().err
+
+
+def test_kitti_seq1_frames_localise_against_the_lifted_map_of_the_other_frames(shared):
+    """Real images end to end: a map triangulated from the even frames 0-16 of KITTI ``seq1`` with their
+    ground-truth poses (``map_from_known_poses``), lifted (random, paired, ray), and the odd frames 1, 5, 9
+    and 13, never in the map, localised by matching their ORB features to the lines' descriptors.  Reference: the
+    ground-truth poses.  Bounds, for every query and every lift as for PnP on the unprotected points with the
+    same matches: 0.5° and 1 % of the median depth of the matched points for the camera centre."""
+    from privslam_jax.data.kitti import KittiSequence
+    from privslam_jax.privacy.localize import localize_image
+    from privslam_jax.slam.known_poses import KnownPoseMapConfig, map_from_known_poses
+
+    seq = KittiSequence(shared / "data" / "kitti_odometry" / "sequences" / "seq1", grey=True)
+    T_w_c, K = np.asarray(seq.poses, np.float64), np.asarray(seq.camera.K, np.float64)
+    frames = list(range(0, 17, 2))
+    cloud = map_from_known_poses([seq.image(i) for i in frames], T_w_c[frames], K,
+                                 KnownPoseMapConfig(n_features=3000, gaps=(1, 2)))
+    X, desc = np.asarray(cloud.xyz, np.float64), np.asarray(cloud.descriptors)
+    assert len(X) > 1000
+    clouds = {lift.__name__: lift(X, fixed_key(0)) for lift in (random_lift, paired_lift, ray_lift)}
+    for i in range(1, 17, 4):
+        T_true = np.linalg.inv(T_w_c[i])
+        for name, lines in clouds.items():
+            loc, uv, ids = localize_image(seq.image(i), lines, desc, K)
+            results = {name: loc, "points": localize_against_points(uv, X[ids], K)} if name == "random_lift" else {name: loc}
+            depth = float(np.median(X[ids] @ T_true[2, :3] + T_true[2, 3]))
+            for which, res in results.items():
+                assert res.success, (i, which)
+                rot = _errors(res.T_c_w, T_true)[0]
+                centre = -res.T_c_w[:3, :3].T @ res.T_c_w[:3, 3]
+                assert rot <= 0.5 and np.linalg.norm(centre - T_w_c[i][:3, 3]) <= 0.01 * depth, (i, which, rot)
