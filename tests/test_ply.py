@@ -151,6 +151,12 @@ def test_errors(tmp_path):
     )
     with pytest.raises(ValueError, match="zero length"):
         load_line_cloud(tmp_path / "zero.ply")
+    (tmp_path / "nan_normal.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+        "property float nx\nproperty float ny\nproperty float nz\nend_header\n1 2 3 nan 0 1\n"
+    )
+    with pytest.raises(ValueError, match="nan_normal.ply.*normals contain NaN or inf"):
+        load_point_cloud(tmp_path / "nan_normal.ply")
 
 
 def test_line_cloud_descriptors_round_trip_and_bad_descriptor_elements(tmp_path):

@@ -329,7 +329,10 @@ def load_point_cloud(path: str | os.PathLike) -> PointCloud:
     normals = None
     if all(c in names for c in ("nx", "ny", "nz")):
         with np.errstate(invalid="ignore"):
-            normals = _as_float(path, np.stack([v["nx"], v["ny"], v["nz"]], axis=-1).astype(np.float64), "vertex normals", fdt)
+            nrm = np.stack([v["nx"], v["ny"], v["nz"]], axis=-1).astype(np.float64)
+        if not np.all(np.isfinite(nrm)):
+            raise input_error(path, "vertex normals contain NaN or inf")
+        normals = _as_float(path, nrm, "vertex normals", fdt)
     desc = _descriptors(path, elements)
     return PointCloud(
         xyz=jnp.asarray(_as_float(path, xyz, "vertex coordinates", fdt)),
