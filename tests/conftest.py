@@ -81,11 +81,11 @@ def count_compiles():
 
 
 # The longest files (seconds per file, one ``-n 2 --dist loadfile`` run of the whole suite on the
-# 2-core machine, 2026-12-03), collected first, and xdist told to hand files out in collection order
+# 2-core machine, 2026-12-03, `benchmarks/suite_time.py`), collected first, and xdist told to hand files out in collection order
 # (by default it reorders them by their number of tests, which put these near the end): a long file
-# that starts last leaves the other worker idle until it ends.  Simulated on that run's per-file times:
-# 1383 s of wall time in xdist's order (measured 1409 s), 1328 s in this one.  Files not listed keep
-# their alphabetical order after these.
+# that starts last leaves the other worker idle until it ends (that script's simulation on the run's
+# per-file times: 1383 s of wall time in xdist's order, measured 1409 s; 1328 s longest first).  Files
+# not listed keep their alphabetical order after these.
 _LONG_FILES = (
     "test_data_parallel.py",  # 343
     "test_tradeoff_train.py",  # 263
@@ -103,6 +103,35 @@ _LONG_FILES = (
 def pytest_configure(config):
     if hasattr(config.option, "loadscopereorder"):  # pytest-xdist's --no-loadscope-reorder
         config.option.loadscopereorder = False
+    if os.environ.get("PRIVSLAM_TEST_TIMES"):  # benchmarks/suite_time.py: per-test wall and compile seconds
+        config.pluginmanager.register(_TestTimes(os.environ["PRIVSLAM_TEST_TIMES"]))
+
+
+class _TestTimes:
+    """Appends ``{"id", "wall", "<event>": seconds}`` per test to ``$PRIVSLAM_TEST_TIMES`` (one JSON line
+    each; every xdist worker appends), the events being JAX's ``/jax/core/compile/*_duration``:
+    tracing, lowering and XLA compilation in this process (not in subprocesses it starts)."""
+
+    def __init__(self, path: str):
+        import collections
+        import jax.monitoring
+
+        self.path, self.seconds = path, collections.Counter()
+        jax.monitoring.register_event_duration_secs_listener(
+            lambda event, secs, **kw: self.seconds.update({event.rsplit("/", 1)[-1]: secs})
+            if event.startswith("/jax/core/compile/") else None)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(self, item, nextitem):
+        import json
+        import time
+
+        self.seconds.clear()
+        start = time.perf_counter()
+        yield
+        row = {"id": item.nodeid, "wall": time.perf_counter() - start, **self.seconds}
+        with open(self.path, "a") as f:
+            f.write(json.dumps(row) + "\n")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -1,0 +1,64 @@
+"""Where the test suite's time goes: wall, XLA compile, and trace+lower seconds per file.
+
+Command::
+
+    python benchmarks/suite_time.py            # runs the README's test command, then prints the table
+    python benchmarks/suite_time.py --from F   # only summarise an earlier run's JSON lines
+
+It also prints the wall time of two workers taking files in xdist's default order (most tests first)
+and longest first, simulated from the per-file times.
+
+The suite runs with ``PRIVSLAM_TEST_TIMES`` set (``tests/conftest.py`` then appends one JSON line per
+test with its wall time and JAX's compile-event seconds).  Compile seconds are those of the test
+processes; subprocesses (CLI runs, notebooks, multi-process training) are counted in wall time only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--from", dest="source", help="JSON lines of an earlier run (skip running the suite)")
+    ap.add_argument("--top", type=int, default=25, help="files to list")
+    args = ap.parse_args()
+    path = Path(args.source) if args.source else Path(tempfile.mkdtemp()) / "times.jsonl"
+    if not args.source:
+        root = Path(__file__).resolve().parents[1]
+        env = dict(os.environ, PRIVSLAM_TEST_TIMES=str(path))
+        subprocess.run([sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadfile", "-q"], cwd=root, env=env,
+                       check=False)
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    files: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    for r in rows:
+        f = files[r["id"].split("::")[0]]
+        f["tests"] += 1
+        f["wall"] += r["wall"]
+        f["compile"] += r.get("backend_compile_duration", 0.0)
+        f["trace"] += r.get("jaxpr_trace_duration", 0.0) + r.get("jaxpr_to_mlir_module_duration", 0.0)
+    total = sum(files.values(), collections.Counter())
+    print(f"{'file':<40} {'tests':>5} {'wall s':>8} {'compile s':>10} {'trace s':>8}")
+    for name, f in sorted(files.items(), key=lambda kv: -kv[1]["wall"])[:args.top]:
+        print(f"{name:<40} {f['tests']:5d} {f['wall']:8.1f} {f['compile']:10.1f} {f['trace']:8.1f}")
+    print(f"{'all (worker seconds)':<40} {total['tests']:5d} {total['wall']:8.1f} {total['compile']:10.1f} "
+          f"{total['trace']:8.1f}")
+    # two workers taking the next file whenever one is free, in xdist's default order (most tests first)
+    # and longest first (what tests/conftest.py asks for): the wall time each order would take
+    for label, key in (("most tests first", lambda kv: -kv[1]["tests"]), ("longest first", lambda kv: -kv[1]["wall"])):
+        workers = [0.0, 0.0]
+        for _, f in sorted(sorted(files.items()), key=key):
+            workers[workers.index(min(workers))] += f["wall"]
+        print(f"two workers, {label}: {max(workers):.0f} s of wall time")
+    print(f"per-test rows: {path}")
+
+
+if __name__ == "__main__":
+    main()
