@@ -9,6 +9,7 @@ import pytest
 from privslam_jax.data.ply import (
     load_descriptors,
     load_line_cloud,
+    load_line_cloud_and_descriptors,
     load_point_cloud,
     read_ply,
     save_line_cloud,
@@ -169,6 +170,9 @@ def test_line_cloud_descriptors_round_trip_and_bad_descriptor_elements(tmp_path)
     save_line_cloud(tmp_path / "l.ply", lines, descriptors=desc)
     np.testing.assert_array_equal(load_descriptors(tmp_path / "l.ply"), desc)
     assert len(load_line_cloud(tmp_path / "l.ply")) == 20  # readers that ignore the element are unaffected
+    both, both_desc = load_line_cloud_and_descriptors(tmp_path / "l.ply")
+    np.testing.assert_array_equal(both_desc, desc)
+    np.testing.assert_array_equal(np.asarray(both.moments), np.asarray(load_line_cloud(tmp_path / "l.ply").moments))
     with pytest.raises(ValueError, match="uint8 of shape"):
         save_line_cloud(tmp_path / "x.ply", lines, descriptors=desc[:19])
     el = read_ply(tmp_path / "l.ply")

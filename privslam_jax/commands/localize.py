@@ -45,12 +45,11 @@ def run(args: argparse.Namespace) -> int:
 
     from privslam_jax.data.files import write_atomic
     from privslam_jax.data.kitti import KittiSequence
-    from privslam_jax.data.ply import load_descriptors, load_line_cloud
+    from privslam_jax.data.ply import load_line_cloud_and_descriptors
     from privslam_jax.data.trajectory_io import write_tum_matrices
     from privslam_jax.privacy.localize import localize_image
 
-    lines = load_line_cloud(args.lines)
-    desc = load_descriptors(args.lines)
+    lines, desc = load_line_cloud_and_descriptors(args.lines)
     if desc is None:
         raise ValueError(f"{args.lines} carries no descriptors, so no image can be matched to its lines: lift a map "
                          "that has them (privslam slam writes map.ply with ORB descriptors; privslam lift keeps them)")

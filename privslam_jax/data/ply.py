@@ -51,6 +51,7 @@ __all__ = [
     "load_point_cloud",
     "save_line_cloud",
     "load_line_cloud",
+    "load_line_cloud_and_descriptors",
     "load_descriptors",
 ]
 
@@ -376,7 +377,17 @@ def save_line_cloud(path: str | os.PathLike, lines: LineCloud, *, descriptors=No
 def load_line_cloud(path: str | os.PathLike) -> LineCloud:
     """Load segments (edges, or consecutive vertex pairs when there is no ``edge`` element) as lines."""
     path = Path(path)
+    return _line_cloud(path, read_ply(path))
+
+
+def load_line_cloud_and_descriptors(path: str | os.PathLike) -> tuple[LineCloud, np.ndarray | None]:
+    """:func:`load_line_cloud` and :func:`load_descriptors` of one file, read once."""
+    path = Path(path)
     elements = read_ply(path)
+    return _line_cloud(path, elements), _descriptors(path, elements)
+
+
+def _line_cloud(path: Path, elements: dict[str, np.ndarray]) -> LineCloud:
     xyz = _vertex_xyz(path, elements)
     if "edge" in elements:
         e = elements["edge"]
