@@ -5,9 +5,6 @@ Command::
     python benchmarks/suite_time.py            # runs the README's test command, then prints the table
     python benchmarks/suite_time.py --from F   # only summarise an earlier run's JSON lines
 
-It also prints the wall time of two workers taking files in xdist's default order (most tests first)
-and longest first, simulated from the per-file times.
-
 The suite runs with ``PRIVSLAM_TEST_TIMES`` set (``tests/conftest.py`` then appends one JSON line per
 test with its wall time and JAX's compile-event seconds).  Compile seconds are those of the test
 processes; subprocesses (CLI runs, notebooks, multi-process training) are counted in wall time only.
@@ -50,13 +47,6 @@ def main() -> None:
         print(f"{name:<40} {f['tests']:5d} {f['wall']:8.1f} {f['compile']:10.1f} {f['trace']:8.1f}")
     print(f"{'all (worker seconds)':<40} {total['tests']:5d} {total['wall']:8.1f} {total['compile']:10.1f} "
           f"{total['trace']:8.1f}")
-    # two workers taking the next file whenever one is free, in xdist's default order (most tests first)
-    # and longest first (what tests/conftest.py asks for): the wall time each order would take
-    for label, key in (("most tests first", lambda kv: -kv[1]["tests"]), ("longest first", lambda kv: -kv[1]["wall"])):
-        workers = [0.0, 0.0]
-        for _, f in sorted(sorted(files.items()), key=key):
-            workers[workers.index(min(workers))] += f["wall"]
-        print(f"two workers, {label}: {max(workers):.0f} s of wall time")
     print(f"per-test rows: {path}")
 
 

@@ -80,29 +80,7 @@ def count_compiles():
     return counting
 
 
-# The longest files (seconds per file, one ``-n 2 --dist loadfile`` run of the whole suite on the
-# 2-core machine, 2026-12-03, `benchmarks/suite_time.py`), collected first, and xdist told to hand files out in collection order
-# (by default it reorders them by their number of tests, which put these near the end): a long file
-# that starts last leaves the other worker idle until it ends (that script's simulation on the run's
-# per-file times: 1383 s of wall time in xdist's order, measured 1409 s; 1328 s longest first).  Files
-# not listed keep their alphabetical order after these.
-_LONG_FILES = (
-    "test_data_parallel.py",  # 343
-    "test_tradeoff_train.py",  # 263
-    "test_notebooks.py",  # 245
-    "test_solvers.py",  # 164
-    "test_pipeline.py",  # 146
-    "test_tradeoff_objectives.py",  # 134
-    "test_slam_atlas.py",  # 120
-    "test_slam_loop.py",  # 116
-    "test_resume_training.py",  # 110
-    "test_pareto_tradeoff.py",  # 87
-)
-
-
 def pytest_configure(config):
-    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist's --no-loadscope-reorder
-        config.option.loadscopereorder = False
     if os.environ.get("PRIVSLAM_TEST_TIMES"):  # benchmarks/suite_time.py: per-test wall and compile seconds
         config.pluginmanager.register(_TestTimes(os.environ["PRIVSLAM_TEST_TIMES"]))
 
@@ -132,8 +110,3 @@ class _TestTimes:
         row = {"id": item.nodeid, "wall": time.perf_counter() - start, **self.seconds}
         with open(self.path, "a") as f:
             f.write(json.dumps(row) + "\n")
-
-
-def pytest_collection_modifyitems(config, items):
-    rank = {name: k for k, name in enumerate(_LONG_FILES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: order within a file kept
