@@ -39,7 +39,7 @@ def _check(main, argv: list[str], option: str, capsys) -> None:
 
 
 
-OWN_OUT = {"run", "detect", "slam", "localize"}
+OWN_OUT = {"run", "detect", "slam", "localize", "client"}
 """Subcommands that claim ``--out`` (manifest.json) before they run."""
 
 PRIVSLAM_CASES = [
@@ -98,6 +98,18 @@ PRIVSLAM_CASES = [
     (["slam", MISSING, "--new-map-after", "-1"], "--new-map-after"),
     (["slam", MISSING, "--vocabulary", MISSING], "--vocabulary"),
     (["slam", MISSING, "--loop-closing", "--vocabulary", str(REPO / "README.md")], "--vocabulary"),
+    # the edge split (serve takes no --out)
+    (["serve", "--store", MISSING, "--max-sessions", "0"], "--max-sessions"),
+    (["serve", "--store", MISSING, "--max-message-mb", "-1"], "--max-message-mb"),
+    (["serve", "--store", MISSING, "--tls-cert", MISSING], "--tls-key"),
+    (["serve", "--store", MISSING, "--token-file", MISSING], "--token-file"),
+    (["client", MISSING, "--server", "localhost:1", "--mode", "bogus"], "--mode"),
+    (["client", MISSING, "--server", "localhost:1", "--session", "a/b"], "--session"),
+    (["client", MISSING, "--server", "localhost:1", "--deadline", "0"], "--deadline"),
+    (["client", MISSING, "--server", "localhost:1", "--reconnect-for", "nan"], "--reconnect-for"),
+    (["client", MISSING, "--server", "localhost:1", "--max-frames", "0"], "--max-frames"),
+    (["client", MISSING, "--server", "localhost:1", "--dilation", "-1"], "--dilation"),
+    (["client", MISSING, "--server", "localhost:1", "--token-file", MISSING], "--token-file"),
 ]
 
 
@@ -109,7 +121,7 @@ def _id(case) -> str:
 @pytest.mark.parametrize(("argv", "option"), PRIVSLAM_CASES, ids=[_id(c) for c in PRIVSLAM_CASES])
 def test_privslam_refuses_bad_option_value(argv, option, tmp_path, capsys):
     out = tmp_path / "out"
-    _check(privslam_main, argv if argv[0] == "eval-points" else [*argv, "--out", str(out)], option, capsys)
+    _check(privslam_main, argv if argv[0] in ("eval-points", "serve") else [*argv, "--out", str(out)], option, capsys)
     if argv[0] in OWN_OUT or argv[0] == "synth":
         assert not out.exists(), "the output folder was claimed before the options were checked"
 

@@ -66,7 +66,7 @@ import warnings
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int, UInt
 
 from privslam_jax.geometry.plucker import lines_from_points_directions, safe_norm
 from privslam_jax.types import LineCloud
@@ -153,18 +153,42 @@ def random_directions(key: jax.Array, like: Float[Array, "N 3"]) -> Float[Array,
     return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def random_lift(points: ArrayLike, key: jax.Array | None = None) -> LineCloud:
+def random_lift(points: ArrayLike, key: jax.Array | None = None, ids: ArrayLike | None = None) -> LineCloud:
     """Lift each point to a line of uniformly random direction through it.
 
     Args:
       points: ``(N, 3)`` points.
       key: a ``jax.random`` key; ``None`` (default) draws one from OS entropy.
+      ids: ``(N,)`` distinct non-negative integers naming the points (e.g. map-point ids).  With
+        them, point ``ids[i]``'s direction is drawn from ``fold_in(key, ids[i])`` alone, so a map
+        that grows and is lifted again with the same key keeps every old point's direction: two
+        lifts of one point with independent directions would meet at the point (the edge server
+        publishes its map this way, :mod:`privslam_jax.edge`).  ``None``: directions drawn by row.
     """
     p, dtype = _as_points(points)
     key = entropy_key() if key is None else key
     first, inverse = unique_points(p)
-    d = _directions(key, len(first))[inverse]  # repeated points share one line (module docstring)
+    if ids is None:
+        d = _directions(key, len(first))
+    else:
+        ids = np.asarray(ids)
+        if ids.shape != (len(p),) or not np.issubdtype(ids.dtype, np.integer) or (len(ids) and ids.min() < 0):
+            raise ValueError(f"ids must be {len(p)} non-negative integers, got {ids.dtype} {ids.shape}")
+        if len(np.unique(ids)) != len(ids):
+            raise ValueError("ids must be distinct")
+        padded = np.zeros(max(256, 1 << int(len(first) - 1).bit_length()), np.uint32)  # few shapes: few compilations
+        padded[: len(first)] = ids[first]
+        d = np.asarray(_keyed_directions(key, jnp.asarray(padded)), np.float64)[: len(first)]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[inverse]  # repeated points share one line (module docstring)
     return _lines(d, np.cross(p, d), dtype)
+
+
+@jax.jit
+def _keyed_directions(key: jax.Array, ids: UInt[Array, " N"]) -> Float[Array, "N 3"]:
+    """Direction ``n/‖n‖``, ``n ~ N(0, I₃)`` from ``fold_in(key, id)``, per id."""
+    n = jax.vmap(lambda i: jax.random.normal(jax.random.fold_in(key, i), (3,)))(ids)
+    return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
 
 
 def random_lift_core(points: Float[Array, "N 3"], key: jax.Array) -> LineCloud:
