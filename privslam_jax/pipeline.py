@@ -23,7 +23,10 @@ matching ``privslam`` command, while the in-memory stages (:func:`filter_stage` 
    with ground-truth poses) and the in-memory ``SlamResult``; :func:`run_pipeline` runs it on the
    original frames (read from the sequence folder) and on the filtered frames in memory (the grey
    values ``privslam slam`` would read from their files) and writes ``OUT/slam_original``, ``OUT/slam_filtered``
-   (trajectories, maps, ``metrics.json``, plots).
+   (trajectories, maps, ``metrics.json``, plots).  With ``config.edge`` the filtered run goes through
+   the edge split instead (:func:`edge_slam_stage`: the device client sends the filtered frames to a
+   gRPC server on loopback, as ``privslam client`` and ``privslam serve`` do; the same poses), its
+   store in ``OUT/edge_store`` and the line cloud the client received in ``OUT/edge_lines_received.ply``.
 4. **map privacy** (:func:`map_to_ground_truth`, :func:`privacy_stage` → :class:`PrivacyStage`) –
    the monocular map is first brought to metres by the Sim(3) alignment of its trajectory to the
    ground truth (SE(3) for stereo; without ground truth it stays in SLAM units); the filtered run's
@@ -57,7 +60,7 @@ from privslam_jax.types import Camera, LineCloud
 
 __all__ = [
     "PipelineConfig", "PipelineReport", "DataStage", "FilterStage", "SlamStage", "PrivacyStage",
-    "data_stage", "filter_stage", "slam_stage", "map_to_ground_truth", "privacy_stage", "write_privacy_outputs",
+    "data_stage", "filter_stage", "slam_stage", "edge_slam_stage", "map_to_ground_truth", "privacy_stage", "write_privacy_outputs",
     "run_pipeline", "mask_leak",
 ]
 
@@ -101,6 +104,9 @@ class PipelineConfig:
     """Lift the filtered map to lines and attack it (needs ``slam``)."""
     lift_seed: int | None = None
     """Fixed lift seed (experiments only); ``None`` draws the key from OS entropy."""
+    edge: bool = False
+    """Run the filtered frames' SLAM through the edge split (:func:`edge_slam_stage`): a gRPC server on
+    loopback and the device client, as ``privslam serve`` and ``privslam client``."""
 
 
 
@@ -113,6 +119,8 @@ def _check_config(config: PipelineConfig) -> None:
                          "show the hidden objects' shapes, and the privacy filter does not remove them)")
     if config.attack and not config.slam:
         raise ValueError("attack needs slam (the attacked map is the SLAM map)")
+    if config.edge and not config.slam:
+        raise ValueError("edge needs slam (the edge server runs the SLAM)")
 
 
 def _fmt(m: dict[str, Any], key: str) -> str:
@@ -281,6 +289,8 @@ class PipelineReport:
     """Wall time per stage, seconds (``render``, ``filter``, ``slam_original``, ``slam_filtered``, ``lift_and_attack``)."""
     summary: str
     """The printable summary (several lines)."""
+    edge: dict[str, Any] | None = None
+    """With ``config.edge``: what crossed the wire for the filtered run (:func:`edge_slam_stage`)."""
 
     def to_json_dict(self) -> dict[str, Any]:
         """The content of ``report.json``: every field but :attr:`summary` and the in-memory values, JSON-able."""
@@ -290,6 +300,8 @@ class PipelineReport:
             d["slam"] = {label: stage.to_json_dict() for label, stage in self.slam.items()}
         if self.privacy is not None:
             d["privacy"] = self.privacy.to_json_dict()
+        if self.edge is not None:
+            d["edge"] = self.edge
         d["timings_s"] = self.timings_s
         return d
 
@@ -421,6 +433,44 @@ def slam_stage(
     return SlamStage(metrics=metrics, result=result)
 
 
+def edge_slam_stage(filtered: Any, camera: Camera, mode: str = "mono", *, store: str | Path,
+                    timestamps: ArrayLike | None = None, gt_poses: ArrayLike | None = None,
+                    out: str | Path | None = None) -> tuple[SlamStage, dict[str, Any]]:
+    """Stage 3 through the edge split: ``filtered`` (:class:`~privslam_jax.inpaint.sequence.FilteredFrames`)
+    sent by the device client (:func:`privslam_jax.edge.client.run_session`) to an edge server
+    started on loopback with its store in ``store``.  Returns the :class:`SlamStage` of the server's
+    session (the same result :func:`slam_stage` gives on the same frames: SLAM is deterministic for a
+    seed) and what crossed: bytes each way, pose latency, and the line cloud the client received
+    (``"line_cloud_ply"``).  The poses the client received are checked against the session's."""
+    from privslam_jax.edge.client import calibration_message, device_frames, run_session
+    from privslam_jax.edge.server import start_server
+    from privslam_jax.slam.outputs import slam_metrics, write_outputs
+
+    n = len(filtered)
+    ts = np.arange(n, dtype=np.float64) if timestamps is None else np.asarray(timestamps, np.float64)[:n]
+    gt = None if gt_poses is None else np.asarray(gt_poses, np.float64)
+    server = start_server(store)
+    try:
+        t0 = time.perf_counter()
+        received = run_session(f"127.0.0.1:{server.port}", calibration_message("pipeline", camera, mode),
+                               device_frames(filtered, ts, mode))
+        wall = time.perf_counter() - t0
+        result = server.servicer.result("pipeline")
+    finally:
+        server.stop()
+    if not np.array_equal(received.T_w_c, np.asarray(result.trajectory.as_matrices(), np.float64)):
+        raise RuntimeError("the poses the client received differ from the server's session")
+    metrics = write_outputs(Path(out), result, ts, gt, mode, wall) if out is not None else slam_metrics(
+        result, ts, gt, mode, wall)
+    lat = received.latency_s[np.isfinite(received.latency_s)] * 1e3
+    crossed = {"server": "127.0.0.1 (loopback)", "store": str(store), "frames": n,
+               "bytes_up_per_frame": received.bytes_up / n, "bytes_down_per_frame": received.bytes_down / n,
+               "latency_ms_p50": float(np.percentile(lat, 50)), "latency_ms_p99": float(np.percentile(lat, 99)),
+               "reconnects": received.reconnects, "line_cloud_bytes": len(received.line_cloud_ply),
+               "line_cloud_ply": received.line_cloud_ply}
+    return SlamStage(metrics=metrics, result=result), crossed
+
+
 def map_to_ground_truth(result: Any, gt_poses: ArrayLike | None, mode: str = "mono") -> tuple[np.ndarray, str]:
     """The map of a SLAM result (``SlamResult``) in the ground-truth frame, and its units.
 
@@ -514,6 +564,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
     on that KITTI-layout sequence as it is (ground-truth poses used when present, the metrics that
     need them skipped with a note when not; object-leak figures only where ground-truth masks exist).
     """
+    from privslam_jax.data.files import write_atomic
     from privslam_jax.privacy.lift import fixed_key
     from privslam_jax.slam.outputs import load_sequence_frames
 
@@ -534,6 +585,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
 
     slam: dict[str, SlamStage] | None = None
     privacy: PrivacyStage | None = None
+    edge: dict[str, Any] | None = None
     if config.slam:
         slam = {}
         seq, original, n = load_sequence_frames(data.sequence, config.mode)
@@ -545,10 +597,22 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
                      for i in range(n))
         for label, frames in (("original", original), ("filtered", in_memory)):
             t0 = time.perf_counter()
-            slam[label] = slam_stage(frames, seq.camera, config.mode, timestamps=seq.timestamps[:n], gt_poses=seq.poses,
-                                     out=out / f"slam_{label}", total=n, progress=progress)
+            if label == "filtered" and config.edge:
+                slam[label], edge = edge_slam_stage(filtered, seq.camera, config.mode, store=out / "edge_store",
+                                                    timestamps=seq.timestamps[:n], gt_poses=seq.poses,
+                                                    out=out / f"slam_{label}")
+                write_atomic(out / "edge_lines_received.ply", edge.pop("line_cloud_ply"))
+            else:
+                slam[label] = slam_stage(frames, seq.camera, config.mode, timestamps=seq.timestamps[:n],
+                                         gt_poses=seq.poses, out=out / f"slam_{label}", total=n, progress=progress)
             timings[f"slam_{label}"] = time.perf_counter() - t0
             lines.append(slam[label].summary(label, ground_truth=gt_poses is not None))
+            if label == "filtered" and edge is not None:
+                lines.append(f"edge: the filtered frames went through a gRPC server on loopback ({out / 'edge_store'}): "
+                             f"{edge['bytes_up_per_frame'] / 1e3:.1f} kB up and {edge['bytes_down_per_frame'] / 1e3:.2f} kB "
+                             f"down per frame, pose latency p50 {edge['latency_ms_p50']:.0f} ms, p99 "
+                             f"{edge['latency_ms_p99']:.0f} ms; the map came back as {edge['line_cloud_bytes'] / 1e3:.0f} kB "
+                             f"of lines ({out / 'edge_lines_received.ply'})")
         if config.attack:
             t0 = time.perf_counter()
             map_xyz, units = map_to_ground_truth(slam["filtered"].result, gt_poses, config.mode)
@@ -568,7 +632,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
             timings["lift_and_attack"] = time.perf_counter() - t0
             lines.append(privacy.summary())
     return PipelineReport(sequence=data.sequence, synthetic=data.synthetic, data=data.stats, filter=filt, slam=slam,
-                          privacy=privacy, timings_s=timings, summary="\n".join(lines))
+                          privacy=privacy, timings_s=timings, summary="\n".join(lines), edge=edge)
 
 
 def mask_leak(instance_ids: Iterable[ArrayLike], hidden: Iterable[ArrayLike], min_pixels: int = 50,

@@ -3,7 +3,7 @@
 References: the single-process SLAM (``run_slam`` on the same filtered grey frames, same seed:
 poses equal bit for bit), the protocol file (``grpc_tools.protoc``), the filter itself (every
 image that crossed decodes to the client's filtered frame), and the geometry of the canonical
-line-cloud export (no vertex is a map point).
+line-cloud export (each line written as its closest point to the origin and one unit along it).
 """
 
 from __future__ import annotations
@@ -45,9 +45,9 @@ def world():
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    srv, port = start_server(tmp_path_factory.mktemp("store"))
-    yield f"127.0.0.1:{port}"
-    srv.stop(None)
+    srv = start_server(tmp_path_factory.mktemp("store"))
+    yield f"127.0.0.1:{srv.port}"
+    srv.stop()
 
 
 class _Capture(grpc.StreamStreamClientInterceptor):
@@ -223,8 +223,8 @@ def test_tls_and_bearer_tokens_refuse_and_log(world, tmp_path, caplog):
     ca, cert, key = _certificates(tmp_path)
     tokens = tmp_path / "tokens.txt"
     tokens.write_text("alice secret-a\nbob secret-b\n")
-    srv, port = start_server(tmp_path / "store", "127.0.0.1:0", tls=(cert, key), tokens=tokens)
-    addr = f"localhost:{port}"
+    srv = start_server(tmp_path / "store", "127.0.0.1:0", tls=(cert, key), tokens=tokens)
+    addr = f"localhost:{srv.port}"
     msgs = _messages(left, n=2)
     try:
         with caplog.at_level(logging.WARNING, logger="privslam_jax.edge"):
@@ -248,7 +248,7 @@ def test_tls_and_bearer_tokens_refuse_and_log(world, tmp_path, caplog):
         refusals = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
         assert len(refusals) == 3 and all("ipv" in r for r in refusals), refusals
     finally:
-        srv.stop(None)
+        srv.stop()
 
 
 def _bad(frame: pb.Frame, **fields) -> pb.Frame:
@@ -264,8 +264,8 @@ def test_bad_input_ends_that_session_only_and_stores_nothing_of_it(world, tmp_pa
     session without calibration each end their own call with INVALID_ARGUMENT and a message naming
     the frame and field, while another session streams on; the refused frame is not stored."""
     seq, left, _, _ = world
-    srv, port = start_server(tmp_path / "store")
-    addr = f"127.0.0.1:{port}"
+    srv = start_server(tmp_path / "store")
+    addr = f"127.0.0.1:{srv.port}"
     good = _messages(left, n=N)
     result: dict = {}
     worker = threading.Thread(target=lambda: result.setdefault(
@@ -308,7 +308,7 @@ def test_bad_input_ends_that_session_only_and_stores_nothing_of_it(world, tmp_pa
         worker.join(timeout=600)
         assert len(result["res"].T_w_c) == N and result["res"].tracked.sum() >= N - 4
     finally:
-        srv.stop(None)
+        srv.stop()
 
 
 def _serve(store: Path, port: int) -> subprocess.Popen:
@@ -361,12 +361,13 @@ def test_serve_and_client_commands(tmp_path, capsys):
     from privslam_jax.data.trajectory_io import read_tum_matrices
 
     seq_dir = write_kitti_sequence(make_sequence(SynthConfig(num_frames=10, seed=0)), tmp_path / "k", progress=False)
-    srv, port = start_server(tmp_path / "store")
+    srv = start_server(tmp_path / "store")
+    port = srv.port
     try:
         rc = main(["client", str(seq_dir), "--server", f"127.0.0.1:{port}", "--out", str(tmp_path / "out"),
                    "--method", "telea"])
     finally:
-        srv.stop(None)
+        srv.stop()
     assert rc == 0
     ts, T = read_tum_matrices(tmp_path / "out" / "trajectory.txt")
     assert T.shape == (10, 4, 4) and np.isfinite(T).all()
@@ -379,3 +380,23 @@ def test_serve_and_client_commands(tmp_path, capsys):
                "--method", "telea", "--reconnect-for", "0.5"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and err[-1].startswith("privslam client: error: session synth: no connection to"), err[-1]
+
+
+def test_pipeline_edge_stage_equals_the_in_process_stage(world, tmp_path):
+    """``privslam run --edge``'s SLAM stage (:func:`edge_slam_stage`) gives the in-process stage's
+    trajectory and metrics on the same filtered frames, and reports what crossed."""
+    from privslam_jax.inpaint.sequence import FilteredFrames
+    from privslam_jax.pipeline import edge_slam_stage, slam_stage
+
+    seq, left, _, _ = world
+    filtered = FilteredFrames(left=np.stack(left), right=None, label_maps=np.zeros((N, *left[0].shape[:2]), np.uint16),
+                              instance_classes={})
+    ts = np.arange(N) / 10.0
+    gt = np.asarray(seq.trajectory.as_matrices(), np.float64)
+    edge, crossed = edge_slam_stage(filtered, seq.camera, "mono", store=tmp_path / "store", timestamps=ts, gt_poses=gt)
+    local = slam_stage((filtered.grey(i) for i in range(N)), seq.camera, "mono", timestamps=ts, gt_poses=gt)
+    np.testing.assert_array_equal(np.asarray(edge.result.trajectory.as_matrices()),
+                                  np.asarray(local.result.trajectory.as_matrices()))
+    for key in ("tracked", "keyframes", "map_points", "ate_rmse_sim3", "rpe_trans"):
+        assert edge.metrics[key] == local.metrics[key], key
+    assert crossed["frames"] == N and crossed["bytes_up_per_frame"] > 10_000 and crossed["line_cloud_ply"]

@@ -46,6 +46,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--mode", choices=("mono", "stereo"), default=d.mode, help=f"SLAM input (default {d.mode})")
     p.add_argument("--lift-seed", type=int, default=None, help="fixed lift seed (experiments only; default: OS entropy)")
     p.add_argument("--no-slam", action="store_true", help="stop after the privacy filter")
+    p.add_argument("--edge", action="store_true",
+                   help="run the filtered frames' SLAM through the edge split: a gRPC server on loopback and the "
+                        "device client, as `privslam serve` and `privslam client` (docs/edge.md); the same poses")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
@@ -61,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         sequence=None if args.sequence is None else str(args.sequence), frames=args.frames, seed=args.seed,
         filter_method=args.filter_method, masks=args.masks, detector=args.detector, conf=args.conf, tta=args.tta,
         propagate=args.propagate, inpainter=args.inpainter, mode=args.mode, lift_seed=args.lift_seed,
-        slam=not args.no_slam, attack=not args.no_slam,
+        slam=not args.no_slam, attack=not args.no_slam, edge=args.edge,
     )
     report = run_pipeline(config, args.out, progress=not args.quiet)
     print(report.summary)

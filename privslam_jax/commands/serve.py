@@ -53,13 +53,13 @@ def run(args: argparse.Namespace) -> int:
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     log.addHandler(handler)
     log.setLevel(logging.INFO)
-    server, port = start_server(args.store, args.listen, tls=tls, tokens=args.token_file,
+    server = start_server(args.store, args.listen, tls=tls, tokens=args.token_file,
                                 max_sessions=args.max_sessions, max_message_bytes=args.max_message_mb * 1024 * 1024)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    print(f"privslam serve: listening on {host}:{port} ({'TLS' if tls else 'no TLS'}), store {args.store}", flush=True)
+    print(f"privslam serve: listening on {host}:{server.port} ({'TLS' if tls else 'no TLS'}), store {args.store}", flush=True)
     stop.wait()
-    server.stop(grace=5).wait()
+    server.stop(grace=5)
     print("privslam serve: stopped", flush=True)
     return 0

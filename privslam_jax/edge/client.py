@@ -137,14 +137,16 @@ def _channel(server: str, root_certificates: bytes | None, max_message_bytes: in
 def run_session(server: str, calibration: pb.Calibration, frames: Sequence[pb.Frame], *, token: str | None = None,
                 root_certificates: bytes | None = None, window: int = 4, deadline_s: float = 3600.0,
                 reconnect_for_s: float = 60.0, want_map: bool = True, interceptors: Sequence = (),
-                max_message_bytes: int = 16 * 1024 * 1024, on_pose=None) -> EdgeResult:
+                max_message_bytes: int = 16 * 1024 * 1024, on_pose=None, rate_hz: float | None = None) -> EdgeResult:
     """Stream ``frames`` (indices 0 … N−1, :func:`frame_message`) to ``server`` as the session of
     ``calibration``; returns the poses and the map (module docstring).
 
     ``token``: the bearer token; ``root_certificates``: PEM of the CA that signed the server's
     certificate (TLS; ``None``: a plain channel).  ``deadline_s`` bounds each connection;
     ``reconnect_for_s`` how long to keep reconnecting after a failure (backoff 0.1 s doubling to
-    5 s).  ``on_pose(pose)`` is called with every acknowledgement as it arrives.  Raises
+    5 s).  ``on_pose(pose)`` is called with every acknowledgement as it arrives.  ``rate_hz``: send
+    frame ``i`` no earlier than ``i / rate_hz`` seconds after the first (a camera's rate; ``None``: as
+    fast as the window allows).  Raises
     :class:`EdgeError` when the server refuses the session or cannot be reached.
     """
     if [f.index for f in frames] != list(range(len(frames))):
@@ -156,13 +158,15 @@ def run_session(server: str, calibration: pb.Calibration, frames: Sequence[pb.Fr
     counts = {"up": 0, "down": 0}
     final: dict[str, pb.Trajectory | pb.LineCloud] = {}
     reconnects, failed_since, backoff = -1, None, 0.1
+    start = time.perf_counter()
+    due = None if rate_hz is None else (lambda i: start + i / rate_hz)
     while True:
         reconnects += 1
         before = len(acked)
         channel = _channel(server, root_certificates, max_message_bytes, interceptors)
         try:
             _attempt(pb_grpc.EdgeSlamStub(channel), calibration, frames, metadata, deadline_s, window, want_map,
-                     acked, sent_at, latency, counts, final, on_pose)
+                     acked, sent_at, latency, counts, final, on_pose, due)
             break
         except grpc.RpcError as err:
             code = err.code() if hasattr(err, "code") else grpc.StatusCode.UNKNOWN
@@ -197,7 +201,7 @@ def run_session(server: str, calibration: pb.Calibration, frames: Sequence[pb.Fr
 
 
 def _attempt(stub, calibration, frames, metadata, deadline_s, window, want_map, acked, sent_at, latency, counts,
-             final, on_pose) -> None:
+             final, on_pose, due) -> None:
     """One connection: send the calibration, every unacknowledged frame (``window`` in flight), then the
     requests; fills ``acked``, ``latency``, ``counts`` and ``final`` as answers arrive."""
     outbox: queue.Queue = queue.Queue()
@@ -207,6 +211,10 @@ def _attempt(stub, calibration, frames, metadata, deadline_s, window, want_map, 
             msg = outbox.get()
             if msg is None:
                 return
+            if msg.WhichOneof("kind") == "frame":
+                if due is not None:
+                    time.sleep(max(0.0, due(msg.frame.index) - time.perf_counter()))
+                sent_at[msg.frame.index] = time.perf_counter()
             counts["up"] += msg.ByteSize()
             yield msg
 
@@ -222,9 +230,7 @@ def _attempt(stub, calibration, frames, metadata, deadline_s, window, want_map, 
         def top_up() -> None:
             nonlocal queued
             while queued < len(todo) and queued - sum(1 for i in todo[:queued] if i in acked) < window:
-                i = todo[queued]
-                sent_at[i] = time.perf_counter()
-                send(pb.Up(frame=frames[i]))
+                send(pb.Up(frame=frames[todo[queued]]))
                 queued += 1
 
         asked = False

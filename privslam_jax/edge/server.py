@@ -22,6 +22,11 @@ Trust and limits:
   the field; what was accepted before stays stored, and other sessions are not affected.
 
 The client sets each call's deadline (:mod:`privslam_jax.edge.client`).
+
+**CPU sharing.**  OpenCV's thread pool (ORB extraction, RANSAC) is process-wide: with one session
+it keeps every core, with several it runs single-threaded, as the sessions already run side by
+side and more threads only contend (``benchmarks/bench_edge.py`` measures the effect; docs/edge.md).
+Results do not depend on it: the poses equal a single-process run's.
 """
 
 from __future__ import annotations
@@ -32,15 +37,18 @@ import logging
 import threading
 from concurrent import futures
 from pathlib import Path
+from typing import NamedTuple
 
+import cv2
 import grpc
+import numpy as np
 
 from privslam_jax.edge import edge_pb2 as pb
 from privslam_jax.edge import edge_pb2_grpc as pb_grpc
 from privslam_jax.edge.session import EdgeSession
 from privslam_jax.errors import InputError
 
-__all__ = ["TokenFile", "EdgeServicer", "start_server", "DEFAULT_MAX_MESSAGE_BYTES"]
+__all__ = ["TokenFile", "EdgeServicer", "EdgeServer", "start_server", "DEFAULT_MAX_MESSAGE_BYTES"]
 
 log = logging.getLogger("privslam_jax.edge")
 
@@ -122,6 +130,14 @@ class EdgeServicer(pb_grpc.EdgeSlamServicer):
         self.keep_idle = keep_idle
         self._sessions: collections.OrderedDict[str, EdgeSession] = collections.OrderedDict()
         self._lock = threading.Lock()
+        self._active = 0
+        self._opencv_threads = cv2.getNumThreads()
+
+    def _count(self, delta: int) -> None:
+        """Sessions being served: OpenCV keeps its threads for one, runs single-threaded for several."""
+        with self._lock:
+            self._active += delta
+            cv2.setNumThreads(self._opencv_threads if self._active <= 1 else 1)
 
     def _open(self, cal: pb.Calibration) -> EdgeSession:
         with self._lock:
@@ -141,6 +157,16 @@ class EdgeServicer(pb_grpc.EdgeSlamServicer):
             for k in idle[: max(0, len(idle) - self.keep_idle)]:
                 del self._sessions[k]
 
+    def result(self, session_id: str):
+        """The :class:`~privslam_jax.slam.system.SlamResult` of a session this server holds in memory
+        (for evaluation next to the server, e.g. ``privslam run --edge``; it never crosses the wire)."""
+        with self._lock:
+            session = self._sessions.get(session_id)
+        if session is None:
+            raise KeyError(f"session {session_id} is not in memory")
+        with session.lock:
+            return session.slam.result(np.asarray(session.timestamps))
+
     def Session(self, request_iterator, context):  # noqa: N802 (the gRPC method's name)
         session = None
         try:
@@ -151,6 +177,7 @@ class EdgeServicer(pb_grpc.EdgeSlamServicer):
             if not session.lock.acquire(blocking=False):
                 sid, session = first.calibration.session_id, None
                 context.abort(grpc.StatusCode.ABORTED, f"session {sid} is served on another connection")
+            self._count(+1)
             log.info("session %s (%s) from %s: %d frames stored", session.calibration.session_id, session.mode,
                      context.peer(), session.next_index)
             yield pb.Down(started=pb.Started(session_id=session.calibration.session_id, next_index=session.next_index))
@@ -158,6 +185,7 @@ class EdgeServicer(pb_grpc.EdgeSlamServicer):
                 kind = msg.WhichOneof("kind")
                 if kind == "frame":
                     yield pb.Down(pose=session.accept(msg.frame))
+                    session.after_reply()  # local mapping while the next frame is on its way
                 elif kind == "trajectory_request":
                     session.persist()
                     yield pb.Down(trajectory=session.trajectory())
@@ -174,23 +202,38 @@ class EdgeServicer(pb_grpc.EdgeSlamServicer):
                 try:
                     session.persist()
                 finally:
+                    self._count(-1)
                     self._release(session)
+
+
+class EdgeServer(NamedTuple):
+    """A running server (:func:`start_server`)."""
+
+    server: grpc.Server
+    port: int
+    """The port it listens on."""
+    servicer: EdgeServicer
+
+    def stop(self, grace: float | None = None) -> None:
+        """Stop serving (``grace`` seconds for the calls in progress; ``None``: none) and wait until stopped."""
+        self.server.stop(grace).wait()
 
 
 def start_server(store: str | Path, listen: str = "127.0.0.1:0", *, tls: tuple[bytes, bytes] | None = None,
                  tokens: str | Path | None = None, max_sessions: int = 8,
-                 max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES, persist_every: int = 10) -> tuple[grpc.Server, int]:
-    """Start serving; returns ``(server, port)`` (``listen`` may ask for port 0: any free one).
+                 max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES, persist_every: int = 10) -> EdgeServer:
+    """Start serving; returns the :class:`EdgeServer` (``listen`` may ask for port 0: any free one).
 
     ``tls``: ``(certificate chain PEM, private key PEM)``; ``tokens``: a token file (:class:`TokenFile`;
-    ``None``: no authentication).  Stop with ``server.stop(grace)``.
+    ``None``: no authentication).
     """
     interceptors = [_BearerAuth(TokenFile(tokens))] if tokens is not None else []
     options = [("grpc.max_receive_message_length", max_message_bytes),
                ("grpc.max_send_message_length", max_message_bytes)]
     server = grpc.server(futures.ThreadPoolExecutor(max_workers=max_sessions, thread_name_prefix="edge-session"),
                          interceptors=interceptors, options=options, maximum_concurrent_rpcs=max_sessions)
-    pb_grpc.add_EdgeSlamServicer_to_server(EdgeServicer(store, persist_every=persist_every), server)
+    servicer = EdgeServicer(store, persist_every=persist_every)
+    pb_grpc.add_EdgeSlamServicer_to_server(servicer, server)
     if tls is not None:
         port = server.add_secure_port(listen, grpc.ssl_server_credentials([(tls[1], tls[0])]))
     else:
@@ -200,4 +243,4 @@ def start_server(store: str | Path, listen: str = "127.0.0.1:0", *, tls: tuple[b
     server.start()
     log.info("serving EdgeSlam on %s (port %d, %s, %s)", listen, port, "TLS" if tls else "no TLS",
              "bearer tokens" if tokens else "no authentication")
-    return server, port
+    return EdgeServer(server, port, servicer)

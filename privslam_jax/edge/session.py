@@ -107,7 +107,8 @@ class EdgeSession:
 
     # ------------------------------------------------------------------ frames
     def accept(self, frame: pb.Frame) -> pb.Pose:
-        """Check, store and track one frame; returns its pose (the acknowledgement).  A frame already
+        """Check, store and track one frame; returns its pose (the acknowledgement: the tracked pose; a
+        new keyframe's local mapping is left for :meth:`after_reply`).  A frame already
         accepted (a resend) is answered with its first reply; a gap or a bad frame raises
         :class:`InputError` and changes nothing."""
         if frame.index < self.next_index:
@@ -124,10 +125,14 @@ class EdgeSession:
             if data is not None:
                 write_atomic(self.folder / sub / f"{frame.index:06d}.png", data)
         write_atomic(self.folder / "frames" / f"{frame.index:06d}.json", json.dumps({"timestamp": frame.timestamp}))
-        reply = self._track(frame.index, float(frame.timestamp), parts)
+        return self._track(frame.index, float(frame.timestamp), parts)
+
+    def after_reply(self) -> None:
+        """The work :meth:`accept` left for after its answer: the local mapping of a new keyframe, and
+        every ``persist_every`` frames the trajectory files."""
+        self.slam.finish_mapping()
         if self.next_index % self.persist_every == 0:
             self.persist()
-        return reply
 
     def _decode(self, index: int, parts: dict[str, bytes | None]) -> dict[str, np.ndarray | None]:
         shape = self.camera.shape
@@ -151,7 +156,8 @@ class EdgeSession:
         img = self._decode(index, parts)
         ignore = img["mask"] > 0 if (self.calibration.ignore_masked and img["mask"] is not None) else None
         depth = None if img["depth"] is None else img["depth"].astype(np.float32) / 1000.0
-        T_w_c, tracked = self.slam.track(img["frames"], right=img["right"], depth=depth, ignore=ignore)
+        T_w_c, tracked = self.slam.track(img["frames"], right=img["right"], depth=depth, ignore=ignore,
+                                         defer_mapping=True)
         self.timestamps.append(timestamp)
         ref = self.slam.frames_rel[index][0]
         map_id = int(self.slam.map.map_ids()[ref]) if ref >= 0 else -1

@@ -196,6 +196,8 @@ class Slam:
         """Atlas map that tracking and mapping work in."""
         self._next_map = 1
         self._loop: LoopCloser | None = None
+        self._mapping_due: tuple[Frame, int] | None = None
+        """A keyframe whose insertion and local mapping :meth:`track` deferred (``defer_mapping``)."""
         if config.loop_closing or (config.merge_maps and config.new_map_after > 0):
             vocab = load_vocabulary(config.vocabulary or EMBEDDED_VOCABULARY)
             self._loop = LoopCloser(vocab, config.loop, with_scale=config.mode == "mono",
@@ -248,11 +250,17 @@ class Slam:
 
     # ------------------------------------------------------------------ main entry
     def track(self, image: np.ndarray, right: np.ndarray | None = None, depth: np.ndarray | None = None,
-              ignore: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+              ignore: np.ndarray | None = None, defer_mapping: bool = False) -> tuple[np.ndarray, bool]:
         """Process the next frame; returns its ``T_w_c`` estimate and whether it was tracked.
 
         ``ignore``: ``(H, W)`` bool, no keypoint of the (left) image is extracted where it is True.
+        ``defer_mapping``: when the frame becomes a keyframe, return its tracked pose at once and leave
+        the keyframe's insertion and local mapping to :meth:`finish_mapping`, which the next
+        :meth:`track` or :meth:`result` calls first; the results are those of the inline order
+        (the returned pose of such a frame is the tracked one, before local BA refines it).  The
+        edge server answers a frame this way and maps while the next one is on its way.
         """
+        self.finish_mapping()
         idx = len(self.timings)
         tim: dict[str, float] = {}
         self.timings.append(tim)
@@ -285,7 +293,7 @@ class Slam:
         if not self.initialized:
             self._initialize(frame)
         else:
-            self._track(frame)
+            self._track(frame, defer_mapping)
         tim["track"] = time.perf_counter() - t1 - tim.get("mapping", 0.0)
         tim["total"] = time.perf_counter() - t0
         rel = self.frames_rel[idx]
@@ -393,7 +401,18 @@ class Slam:
         return len(idx)
 
     # ------------------------------------------------------------------ tracking
-    def _track(self, frame: Frame) -> None:
+    def finish_mapping(self) -> None:
+        """Insert the keyframe :meth:`track` deferred and run its local mapping (no-op without one)."""
+        if self._mapping_due is None:
+            return
+        frame, n = self._mapping_due
+        self._mapping_due = None
+        t = time.perf_counter()
+        self._insert_keyframe(frame)
+        self.timings[frame.index]["mapping"] = time.perf_counter() - t
+        self._record(frame, True, n)
+
+    def _track(self, frame: Frame, defer_mapping: bool = False) -> None:
         cfg, m, tim = self.cfg, self.map, self.timings[-1]
         tcfg = cfg.tracking
         seed = cfg.seed + 7919 * frame.index
@@ -469,9 +488,12 @@ class Slam:
                 self._ref_kf = m.keyframes[int(kfs[0])]
             self._frames_since_kf += 1
             if self._need_keyframe(frame, n):
-                t = time.perf_counter()
-                self._insert_keyframe(frame)
-                tim["mapping"] = time.perf_counter() - t
+                if defer_mapping:
+                    self._mapping_due = (frame, n)
+                else:
+                    t = time.perf_counter()
+                    self._insert_keyframe(frame)
+                    tim["mapping"] = time.perf_counter() - t
             self._record(frame, True, n)
             self._last_good = frame
         else:
@@ -559,6 +581,7 @@ class Slam:
     # ------------------------------------------------------------------ results
     def result(self, timestamps: np.ndarray | None = None) -> SlamResult:
         """Trajectory (every frame), keyframes, map and timings so far."""
+        self.finish_mapping()
         n = len(self.frames_rel)
         if n == 0:
             raise ValueError("no frames were processed")
