@@ -42,5 +42,7 @@ def test_bad_input_is_refused():
     images = [np.zeros((48, 64), np.uint8)] * 2
     with pytest.raises(ValueError, match="one finite 4x4 pose per image"):
         map_from_known_poses(images, np.tile(np.eye(4), (3, 1, 1)), K)
+    with pytest.raises(ValueError, match="K must be finite"):
+        map_from_known_poses(images, np.tile(np.eye(4), (2, 1, 1)), np.where(K == 100.0, np.nan, K))
     with pytest.raises(ValueError, match="no point passed"):
         map_from_known_poses(images, np.tile(np.eye(4), (2, 1, 1)), K)  # blank images: no features

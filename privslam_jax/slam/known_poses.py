@@ -55,6 +55,8 @@ def map_from_known_poses(images: Sequence[np.ndarray], T_w_c: Float[np.ndarray, 
     if T_w_c.shape != (len(images), 4, 4) or K.shape != (3, 3) or not np.all(np.isfinite(T_w_c)):
         raise ValueError(f"need one finite 4x4 pose per image and a 3x3 K; got {len(images)} images, poses "
                          f"{T_w_c.shape}, K {K.shape}")
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K must be finite with positive focal lengths, got {K.tolist()}")
     T_c_w = np.linalg.inv(T_w_c)
     feats = [extract_orb(to_gray_u8(im), OrbConfig(n_features=config.n_features)) for im in images]
     near, far = config.depth_range
