@@ -80,14 +80,24 @@ class _Capture(grpc.StreamStreamClientInterceptor):
         return _Responses(continuation(details, watched()))
 
 
-def _messages(left, right=None, n=N):
-    return [frame_message(i, 0.1 * i, left[i], right=None if right is None else right[i]) for i in range(n)]
+def _messages(left, right=None, n=N, depth=None):
+    return [frame_message(i, 0.1 * i, left[i], right=None if right is None else right[i],
+                          depth=None if depth is None else depth[i]) for i in range(n)]
 
 
-def _reference(seq, left, right, mode, n=N):
+def _millimetres(depth: np.ndarray) -> np.ndarray:
+    """A depth map as it crosses (whole millimetres in 16 bits, 0 = none: so none beyond 65.535 m)
+    and the server reads it back, in metres."""
+    mm = np.rint(np.asarray(depth, np.float64) * 1000.0)
+    return np.where((mm > 0) & (mm < 65536), mm, 0.0).astype(np.float32) / np.float32(1000.0)
+
+
+def _reference(seq, left, right, mode, n=N, depth=None):
     items = [grey_as_read(x) for x in left[:n]]
     if mode == "stereo":
         items = list(zip(items, [grey_as_read(x) for x in right[:n]]))
+    if mode == "rgbd":
+        items = list(zip(items, [_millimetres(d) for d in depth[:n]]))
     return run_slam(items, seq.camera, SlamConfig(mode=mode, seed=0))
 
 
@@ -109,7 +119,7 @@ def test_generated_modules_match_the_proto_file(tmp_path):
     assert fresh == committed
 
 
-@pytest.mark.parametrize("mode", ["mono", "stereo"])
+@pytest.mark.parametrize("mode", ["mono", "stereo", "rgbd"])
 def test_session_poses_equal_the_single_process_run_and_only_lines_come_back(world, server, mode, tmp_path):
     """Poses equal ``run_slam``'s on the same frames and seed, bit for bit; the server sends only
     ``started``/``pose``/``trajectory``/``line_cloud`` messages, and the line cloud has one line per
@@ -117,11 +127,12 @@ def test_session_poses_equal_the_single_process_run_and_only_lines_come_back(wor
     along): nothing in the file depends on where on its line the point is."""
     from privslam_jax.data.ply import load_line_cloud, read_ply
 
-    seq, left, right, _ = world
+    seq, left, right, frames = world
+    depth = [f.depth for f in frames] if mode == "rgbd" else None
     capture = _Capture()
-    res = run_session(server, calibration_message(f"eq-{mode}", seq.camera, mode), _messages(left, right if mode == "stereo" else None),
-                      interceptors=[capture])
-    ref = _reference(seq, left, right, mode)
+    res = run_session(server, calibration_message(f"eq-{mode}", seq.camera, mode),
+                      _messages(left, right if mode == "stereo" else None, depth=depth), interceptors=[capture])
+    ref = _reference(seq, left, right, mode, depth=depth)
     np.testing.assert_array_equal(res.T_w_c, np.asarray(ref.trajectory.as_matrices(), np.float64))
     np.testing.assert_array_equal(res.tracked, ref.tracked)
     assert res.tracked.sum() >= N - 4 and res.reconnects == 0 and np.isfinite(res.latency_s).all()
@@ -309,6 +320,53 @@ def test_bad_input_ends_that_session_only_and_stores_nothing_of_it(world, tmp_pa
         assert len(result["res"].T_w_c) == N and result["res"].tracked.sum() >= N - 4
     finally:
         srv.stop()
+
+
+def test_a_client_that_disconnects_mid_stream_frees_what_it_held(world, tmp_path):
+    """A client whose connection drops after five acknowledged frames (channel closed mid-stream,
+    no end of stream) frees what it held on the server: the session's lock, its place among the
+    sessions being served (OpenCV gets its threads back) and the one call slot of a server made for
+    one session, which then serves another client; the five frames stay stored and the session
+    resumes from frame 5, with the poses of an uninterrupted run."""
+    import queue
+
+    from privslam_jax.edge.edge_pb2_grpc import EdgeSlamStub
+
+    seq, left, _, _ = world
+    srv = start_server(tmp_path / "store", max_sessions=1)
+    addr = f"127.0.0.1:{srv.port}"
+    ups: queue.Queue = queue.Queue()
+    ups.put(pb.Up(calibration=calibration_message("drop", seq.camera, "mono")))
+    for msg in _messages(left, n=5):
+        ups.put(pb.Up(frame=msg))
+
+    def requests():  # the client never ends its stream: it is cut off
+        while (msg := ups.get()) is not None:
+            yield msg
+
+    try:
+        channel = grpc.insecure_channel(addr)
+        for down in EdgeSlamStub(channel).Session(requests(), timeout=300):
+            if down.WhichOneof("kind") == "pose" and down.pose.index == 4:
+                break
+        channel.close()
+        ups.put(None)
+        session = srv.servicer._sessions["drop"]
+        deadline = time.monotonic() + 60
+        while (session.lock.locked() or srv.servicer._active) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not session.lock.locked() and srv.servicer._active == 0
+        assert cv2.getNumThreads() == srv.servicer._opencv_threads
+        other = run_session(addr, calibration_message("next", seq.camera, "mono"), _messages(left, n=4),
+                            want_map=False, reconnect_for_s=0.0)
+        assert len(other.T_w_c) == 4 and other.reconnects == 0
+        stored = sorted(p.name for p in (tmp_path / "store" / "drop" / "frames").glob("*.json"))
+        assert stored == [f"{i:06d}.json" for i in range(5)]
+        res = run_session(addr, calibration_message("drop", seq.camera, "mono"), _messages(left), want_map=False)
+    finally:
+        srv.stop()
+    np.testing.assert_array_equal(res.T_w_c, np.asarray(_reference(seq, left, None, "mono").trajectory.as_matrices(),
+                                                        np.float64))
 
 
 def _serve(store: Path, port: int) -> subprocess.Popen:

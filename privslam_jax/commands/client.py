@@ -98,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.data.trajectory_io import write_tum_matrices
     from privslam_jax.edge.client import calibration_message, device_frames, run_session
     from privslam_jax.inpaint.sequence import filter_sequence_in_memory
+    from privslam_jax.slam.outputs import write_frame_status
 
     token = None if args.token_file is None else _first_token(args.token_file)
     ca = args.ca.read_bytes() if args.ca is not None else None
@@ -121,8 +122,7 @@ def run(args: argparse.Namespace) -> int:
                       reconnect_for_s=args.reconnect_for, want_map=not args.no_map, on_pose=progress)
     out = args.out
     write_tum_matrices(out / "trajectory.txt", res.timestamps, res.T_w_c)
-    write_atomic(out / "frames.txt", "# timestamp tracked map\n" + "".join(
-        f"{t!r} {int(k)} {int(m)}\n" for t, k, m in zip(res.timestamps.tolist(), res.tracked, res.maps)))
+    write_frame_status(out / "frames.txt", res.timestamps, res.tracked, res.maps)
     if res.line_cloud_ply:
         write_atomic(out / "lines.ply", res.line_cloud_ply)
     lat = res.latency_s[np.isfinite(res.latency_s)]

@@ -93,10 +93,11 @@ def frame_message(index: int, timestamp: float, image: np.ndarray, *, right: np.
         msg.right = grey(right)
     if depth is not None:
         d = np.asarray(depth, np.float64)
-        mm = np.where(np.isfinite(d) & (d > 0), np.rint(d * 1000.0), 0.0)
+        mm = np.rint(np.where(np.isfinite(d), d, 0.0) * 1000.0)
+        mm[(mm <= 0) | (mm > 65535)] = 0.0  # 16-bit millimetres: beyond 65.535 m is "no depth", not 65.5 m
         if hidden is not None:
             mm[hidden] = 0.0  # the removed objects' shapes stay on the device
-        msg.depth = encode_png(np.clip(mm, 0, 65535).astype(np.uint16))
+        msg.depth = encode_png(mm.astype(np.uint16))
     if hidden is not None and hidden.any():
         msg.mask = encode_png(hidden.astype(np.uint8) * 255)
     return msg

@@ -181,13 +181,12 @@ class EdgeSession:
         if not self.timestamps:
             return
         from privslam_jax.data.trajectory_io import write_tum_matrices
+        from privslam_jax.slam.outputs import write_frame_status
 
         r = self.slam.result(np.asarray(self.timestamps))
         write_tum_matrices(self.folder / "trajectory.txt", np.asarray(self.timestamps),
                            np.asarray(r.trajectory.as_matrices(), np.float64))
-        maps = r.frame_maps if r.frame_maps is not None else np.zeros(len(self.timestamps), np.int64)
-        write_atomic(self.folder / "frames.txt", "# timestamp tracked map\n" + "".join(
-            f"{t!r} {int(k)} {int(m)}\n" for t, k, m in zip(self.timestamps, r.tracked, maps)))
+        write_frame_status(self.folder / "frames.txt", self.timestamps, r.tracked, r.frame_maps)
         write_atomic(self.folder / "times.txt", "".join(f"{t!r}\n" for t in self.timestamps))
 
     def line_cloud(self) -> pb.LineCloud:

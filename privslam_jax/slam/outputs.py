@@ -40,7 +40,7 @@ import numpy as np
 
 from privslam_jax.data.files import write_atomic, write_figure
 
-__all__ = ["align_to_ground_truth", "load_sequence_frames", "masked_regions", "write_outputs"]
+__all__ = ["align_to_ground_truth", "load_sequence_frames", "masked_regions", "write_frame_status", "write_outputs"]
 
 
 def load_sequence_frames(path: str | Path, mode: str, max_frames: int | None = None):
@@ -125,6 +125,15 @@ def slam_metrics(result, timestamps: np.ndarray, gt: np.ndarray | None, mode: st
     return metrics
 
 
+def write_frame_status(path: Path, timestamps, tracked, maps=None) -> None:
+    """Write ``frames.txt`` (module docstring) atomically: ``timestamp tracked map`` per frame, with a
+    ``#`` header; ``maps`` ``None``: every pose in map 0."""
+    ts = np.asarray(timestamps, np.float64).tolist()
+    maps = np.zeros(len(ts), np.int64) if maps is None else maps
+    write_atomic(path, "# timestamp tracked map\n" + "".join(
+        f"{t!r} {int(k)} {int(m)}\n" for t, k, m in zip(ts, tracked, maps, strict=True)))
+
+
 def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | None, mode: str,
                   wall_time: float, plots: bool = True) -> dict:
     """Write the files described in the module docstring; returns :func:`slam_metrics`."""
@@ -136,9 +145,7 @@ def write_outputs(out: Path, result, timestamps: np.ndarray, gt: np.ndarray | No
     n = T.shape[0]
     ts = np.asarray(timestamps, np.float64)[:n]
     write_tum_matrices(out / "trajectory.txt", ts, T)
-    maps = result.frame_maps if result.frame_maps is not None else np.zeros(n, np.int64)
-    rows = "".join(f"{t!r} {int(k)} {int(mp)}\n" for t, k, mp in zip(ts.tolist(), result.tracked, maps))
-    write_atomic(out / "frames.txt", "# timestamp tracked map\n" + rows)
+    write_frame_status(out / "frames.txt", ts, result.tracked, result.frame_maps)
     write_tum_matrices(out / "keyframes.txt", ts[result.keyframe_indices], result.keyframe_poses)
     save_point_cloud(out / "map.ply", result.map)
     metrics = slam_metrics(result, timestamps, gt, mode, wall_time)
