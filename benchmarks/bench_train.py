@@ -1,10 +1,13 @@
 """Benchmark: training throughput (images/s) on 1 device, 2 devices of one process, 2 processes.
 
-Command: ``python benchmarks/bench_train.py [--steps 8] [--detector-imgsz 256] [--inpaint-size 64] [--batch 8]``
+Command: ``python benchmarks/bench_train.py [--steps 8] [--detector-imgsz 256] [--inpaint-size 64] [--batch 8]
+[--trainers detector,inpainter,tradeoff]``
 
 For each trainer — the YOLOv8n detector (``privslam_jax.detect.train``, random textured 8-class
-YOLO dataset) and the EdgeConnect CPU preset (``privslam_jax.inpaint.train``, ``edge_inpaint``
-stage on random crops) — each configuration runs in its own process (the device count is fixed
+YOLO dataset), the EdgeConnect CPU preset (``privslam_jax.inpaint.train``, ``edge_inpaint``
+stage on random crops) and the privacy/accuracy trade-off (``privslam_jax.tradeoff.train``, the
+embedded filter and detector on pairs of synthetic 320×96 frames, ``--batch`` pairs a step; an
+"image" is a pair) — each configuration runs in its own process (the device count is fixed
 when JAX starts): ``1 device``; ``2 devices`` (``XLA_FLAGS=--xla_force_host_platform_device_count=2``,
 one process, the batch split); ``2 processes`` (``jax.distributed`` on loopback, one device each,
 each loading its own half of every batch).  A process first trains 2 steps
@@ -56,6 +59,20 @@ def _worker(a: argparse.Namespace) -> None:
         train(dataclasses.replace(cfg, max_steps=2), progress=False)  # compile
         t = time.perf_counter()
         train(dataclasses.replace(cfg, max_steps=a.steps), progress=False)
+    elif a.trainer == "tradeoff":
+        from privslam_jax.detect.predict import EMBEDDED_WEIGHTS
+        from privslam_jax.detect.weights import load_detector
+        from privslam_jax.inpaint.filter import Inpainter
+        from privslam_jax.tradeoff import DetectorModel
+        from privslam_jax.tradeoff.train import TradeoffConfig, train_tradeoff
+
+        detector, det_params = DetectorModel.split(load_detector(EMBEDDED_WEIGHTS)[0])
+        cfg = TradeoffConfig(batch_size=a.batch, devices=devices, steps=10_000, checkpoint_every=10**9)
+        work = Path(a.data).parent / f"tradeoff-{a.processes}x{devices}"  # shared by the processes (orbax)
+        init = Inpainter.embedded("synthetic")
+        train_tradeoff(cfg, init, det_params, detector, work / "warm", max_steps=2, progress=False)
+        t = time.perf_counter()
+        train_tradeoff(cfg, init, det_params, detector, work / "timed", max_steps=a.steps, progress=False)
     else:
         from privslam_jax.inpaint.train import TrainConfig, train
 
@@ -128,8 +145,8 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=8, help="global batch (a multiple of 2)")
     ap.add_argument("--detector-imgsz", type=int, default=256)
     ap.add_argument("--inpaint-size", type=int, default=64)
-    ap.add_argument("--trainers", default="detector,inpainter")
-    ap.add_argument("--worker", choices=("detector", "inpainter"), help=argparse.SUPPRESS)
+    ap.add_argument("--trainers", default="detector,inpainter,tradeoff")
+    ap.add_argument("--worker", choices=("detector", "inpainter", "tradeoff"), help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
     ap.add_argument("--processes", type=int, default=1, help=argparse.SUPPRESS)
     ap.add_argument("--process-id", type=int, default=0, help=argparse.SUPPRESS)
@@ -139,11 +156,15 @@ def main() -> None:
         a.trainer = a.worker
         _worker(a)
         return
-    configs = {"detector": [(1, 1), (2, 1), (1, 2)], "inpainter": [(1, 1), (2, 1), (1, 2)]}
+    configs = dict.fromkeys(("detector", "inpainter", "tradeoff"), [(1, 1), (2, 1), (1, 2)])
+    if unknown := set(a.trainers.split(",")) - set(configs):
+        ap.error(f"--trainers: unknown {sorted(unknown)}; choose from {sorted(configs)}")
     with tempfile.TemporaryDirectory() as tmp:
         _write_dataset(Path(tmp) / "ds", 4 * a.batch, a.detector_imgsz)
-        print(f"{a.steps} timed steps, global batch {a.batch}; detector {a.detector_imgsz}² YOLOv8n, "
-              f"inpainter {a.inpaint_size}² crops (CPU preset), {os.cpu_count()} CPU cores\n")
+        what = {"detector": f"detector {a.detector_imgsz}² YOLOv8n", "inpainter": f"inpainter {a.inpaint_size}² crops "
+                "(CPU preset)", "tradeoff": "trade-off pairs of 320×96 frames (embedded filter and detector)"}
+        print(f"{a.steps} timed steps, global batch {a.batch}; "
+              + ", ".join(what[t] for t in a.trainers.split(",")) + f"; {os.cpu_count()} CPU cores\n")
         print("| trainer | configuration | devices | images/s | scaling efficiency |")
         print("|---|---|---|---|---|")
         for trainer in a.trainers.split(","):
@@ -154,7 +175,7 @@ def main() -> None:
                 name = "1 device" if r["devices"] == 1 else (f"{devices} devices, 1 process" if processes == 1
                                                             else f"{processes} processes, 1 device each")
                 eff = r["images_per_s"] / (r["devices"] * one)
-                print(f"| {trainer} | {name} | {r['devices']} | {r['images_per_s']:.1f} | {eff:.2f} |", flush=True)
+                print(f"| {trainer} | {name} | {r['devices']} | {r['images_per_s']:.3g} | {eff:.2f} |", flush=True)
 
 
 if __name__ == "__main__":

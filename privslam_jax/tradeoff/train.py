@@ -21,12 +21,23 @@ trade-off compiles one step (per process, and once for all processes through the
 only whether the alignment runs at all (``λ_a ≠ 0``) is part of the program.
 Checkpoints (orbax) hold the parameters, the optimiser state and the step; a rerun of
 :func:`train_tradeoff` with the same ``workdir`` resumes from the latest one.
+
+**Batches and devices.**  ``batch_size`` pairs per step (default 1): the gradient and the losses are
+the means over the pairs, each pair's accuracy term dropped on its own when its alignment did not
+converge. ``devices > 1`` runs the step data-parallel as the other trainers do
+(:mod:`privslam_jax.sharding`): the batch split across a ``("data",)`` mesh, the parameters, Adam's
+state and the detector replicated, and XLA inserting the mean's all-reduce, so ``k`` steps on ``n``
+devices compute ``k`` steps on one with the same global batch up to the order of the sums.  In a
+multi-process run (:func:`~privslam_jax.sharding.initialize_distributed` first) every process makes
+only its own rows of each batch (:func:`synthetic_batches`), process 0 writes the log, and orbax
+writes the shared checkpoints, which resume under another process or device count.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -50,11 +61,12 @@ from privslam_jax.inpaint.differentiable import (
     filter_geometry,
 )
 from privslam_jax.inpaint.filter import Inpainter
+from privslam_jax.sharding import data_mesh, local_rows, replicate, shard_batch, to_host
 from privslam_jax.tradeoff.objectives import DetectorModel, accuracy_loss, fidelity_loss, privacy_loss
 from privslam_jax.tradeoff.photometric import PhotometricConfig
 
-__all__ = ["TradeoffConfig", "TradeoffSample", "loss_weights", "sample_of", "synthetic_pairs", "tradeoff_step",
-           "train_tradeoff"]
+__all__ = ["TradeoffConfig", "TradeoffSample", "loss_weights", "pair_gradients", "sample_of", "stack_samples",
+           "synthetic_batches", "synthetic_pairs", "tradeoff_step", "train_tradeoff"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +100,10 @@ class TradeoffConfig:
     ends at its iteration limit more often, and its gradient is flagged NaN)."""
     checkpoint_every: int = 50
     seed: int = 0
+    batch_size: int = 1
+    """Pairs per step (module docstring); a multiple of ``devices`` and of the process count."""
+    devices: int = 1
+    """Data-parallel over this many devices (in a multi-process run: all of every process's)."""
 
 
 class TradeoffSample(NamedTuple):
@@ -142,21 +158,42 @@ def sample_of(ref: Any, tgt: Any, camera: Any, model: FilterModel, rows: int, di
     )
 
 
-def synthetic_pairs(config: TradeoffConfig, model: FilterModel) -> Iterator[TradeoffSample]:
-    """An endless, reproducible stream of training pairs: a random world of ``config.world_seeds``
-    (rendered once, kept), a random reference frame, the target ``gap`` frames later."""
+def synthetic_batches(config: TradeoffConfig, model: FilterModel, rows: slice = slice(None),
+                      start: int = 0) -> Iterator[list[TradeoffSample]]:
+    """An endless, reproducible stream of training batches of ``config.batch_size`` pairs, each a
+    random world of ``config.world_seeds`` (rendered when first needed, then kept), a random
+    reference frame and the target ``gap`` frames later; only the pairs of ``rows`` are made (a
+    process's share, :func:`~privslam_jax.sharding.local_rows`), from batch ``start`` on (the earlier
+    batches' draws are skipped, not made). The draws are pair after pair, so the stream of pairs does
+    not depend on the batch size."""
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
     rng = np.random.default_rng(config.seed)
     worlds: dict[int, Any] = {}
-    while True:
-        s = int(rng.choice(config.world_seeds))
-        if s not in worlds:
-            worlds[s] = make_sequence(SynthConfig(width=config.width, height=config.height,
-                                                  num_frames=config.frames_per_world, seed=s))
-        seq = worlds[s]
-        r = int(rng.integers(0, config.frames_per_world - config.gap))
-        yield sample_of(seq[r], seq[r + config.gap], seq.camera, model, config.rows, config.dilation)
+    keep = range(config.batch_size)[rows]
+    for batch in itertools.count():
+        draws = [(int(rng.choice(config.world_seeds)), int(rng.integers(0, config.frames_per_world - config.gap)))
+                 for _ in range(config.batch_size)]  # (rng.choice then rng.integers, pair after pair)
+        if batch < start:
+            continue
+        out = []
+        for s, r in (draws[i] for i in keep):
+            if s not in worlds:
+                worlds[s] = make_sequence(SynthConfig(width=config.width, height=config.height,
+                                                      num_frames=config.frames_per_world, seed=s))
+            seq = worlds[s]
+            out.append(sample_of(seq[r], seq[r + config.gap], seq.camera, model, config.rows, config.dilation))
+        yield out
+
+
+def synthetic_pairs(config: TradeoffConfig, model: FilterModel) -> Iterator[TradeoffSample]:
+    """The pairs of :func:`synthetic_batches`, one after the other."""
+    return itertools.chain.from_iterable(synthetic_batches(dataclasses.replace(config, batch_size=1), model))
+
+
+def stack_samples(samples: list[TradeoffSample]) -> TradeoffSample:
+    """One batch of pairs: every array with a leading batch axis."""
+    return jax.tree.map(lambda *xs: np.stack(xs), *samples)
 
 
 def loss_weights(config: TradeoffConfig) -> Float[np.ndarray, " 2"]:
@@ -164,17 +201,11 @@ def loss_weights(config: TradeoffConfig) -> Float[np.ndarray, " 2"]:
     return np.array([config.privacy_weight, config.accuracy_weight], np.float32)
 
 
-def tradeoff_step(
-    params: PyTree, rest: PyTree, opt_state: PyTree, sample: TradeoffSample, detector_params: PyTree,
-    weights: Float[Array, " 2"], *, model: FilterModel, detector: DetectorModel,
-    optimizer: optax.GradientTransformation, config: TradeoffConfig,
-) -> tuple[PyTree, PyTree, dict[str, Array]]:
-    """One optimiser step on ``L`` (module docstring); returns new params, optimiser state and the losses.
-
-    ``params``: the generators' ``nnx.Param`` leaves; ``rest``: the other state (spectral-norm
-    vectors), held fixed; ``weights``: ``(λ_p, λ_a)`` (:func:`loss_weights`). ``config`` gives the
-    rest, and ``config.accuracy_weight == 0`` leaves the alignment out of the program (the accuracy
-    term is then 0 whatever ``weights[1]``). Pure: jit it with the keyword arguments bound."""
+def pair_gradients(
+    params: PyTree, rest: PyTree, sample: TradeoffSample, detector_params: PyTree, weights: Float[Array, " 2"], *,
+    model: FilterModel, detector: DetectorModel, config: TradeoffConfig,
+) -> tuple[PyTree, dict[str, Array]]:
+    """``∂L/∂φ`` and the losses of one pair (module docstring; arguments as :func:`tradeoff_step`)."""
     s = sample
     w_priv, w_acc = weights[0], weights[1]
 
@@ -200,11 +231,33 @@ def tradeoff_step(
     cot_t = g_fid + w_priv * g_priv + w_acc * jnp.where(ok, g_acc_t, 0.0)
     cot_r = w_acc * jnp.where(ok, g_acc_r, 0.0)
     (grads,) = pull((cot_t, cot_r))
-    updates, opt_state = optimizer.update(grads, opt_state, params)
-    params = optax.apply_updates(params, updates)
     total = l_fid + w_priv * l_priv + w_acc * jnp.where(ok, l_acc, 0.0)
-    return params, opt_state, {"loss": total, "fidelity": l_fid, "privacy": l_priv,
-                               "accuracy": l_acc, "acc_skipped": (~ok).astype(jnp.float32)}
+    return grads, {"loss": total, "fidelity": l_fid, "privacy": l_priv, "accuracy": l_acc,
+                   "acc_skipped": (~ok).astype(jnp.float32)}
+
+
+def tradeoff_step(
+    params: PyTree, rest: PyTree, opt_state: PyTree, sample: TradeoffSample, detector_params: PyTree,
+    weights: Float[Array, " 2"], *, model: FilterModel, detector: DetectorModel,
+    optimizer: optax.GradientTransformation, config: TradeoffConfig,
+) -> tuple[PyTree, PyTree, dict[str, Array]]:
+    """One optimiser step on ``L`` (module docstring); returns new params, optimiser state and the losses.
+
+    ``params``: the generators' ``nnx.Param`` leaves; ``rest``: the other state (spectral-norm
+    vectors), held fixed; ``sample``: one pair, or a batch (:func:`stack_samples`: every array with a
+    leading batch axis), whose gradient and losses are the means over its pairs; ``weights``:
+    ``(λ_p, λ_a)`` (:func:`loss_weights`). ``config`` gives the rest, and ``config.accuracy_weight == 0``
+    leaves the alignment out of the program (the accuracy term is then 0 whatever ``weights[1]``).
+    Pure: jit it with the keyword arguments bound."""
+    grad_fn = functools.partial(pair_gradients, model=model, detector=detector, config=config)
+    if sample.target.ndim == 4:  # a batch: the pairs side by side, then their mean
+        grads, logs = jax.vmap(grad_fn, in_axes=(None, None, 0, None, None))(params, rest, sample, detector_params, weights)
+        grads = jax.tree.map(lambda g: jnp.mean(g, axis=0), grads)
+        logs = {k: jnp.mean(v) for k, v in logs.items()}  # (in the single pair's order: the log's columns)
+    else:
+        grads, logs = grad_fn(params, rest, sample, detector_params, weights)
+    updates, opt_state = optimizer.update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state, logs
 
 
 def _compiled_step(model: FilterModel, detector: DetectorModel, config: TradeoffConfig) -> tuple[Any, Any]:
@@ -223,6 +276,15 @@ def _step_program(model: FilterModel, detector: DetectorModel, config: TradeoffC
         p, r, o, smp, dp, w, model=model, detector=detector, optimizer=optimizer, config=config))
 
 
+def _batches_of(data: Iterator[TradeoffSample], size: int, rows: slice) -> Iterator[list[TradeoffSample]]:
+    """``rows`` of each ``size`` consecutive pairs of ``data``."""
+    while True:
+        pairs = list(itertools.islice(data, size))
+        if len(pairs) < size:
+            raise ValueError(f"the training data ended: {len(pairs)} pairs left for a batch of {size}")
+        yield pairs[rows]
+
+
 def train_tradeoff(
     config: TradeoffConfig, inpainter: Inpainter, detector_params: PyTree, detector: DetectorModel,
     workdir: str | Path, *, data: Iterator[TradeoffSample] | None = None, max_steps: int | None = None,
@@ -232,13 +294,18 @@ def train_tradeoff(
 
     Writes ``workdir/checkpoints/<step>`` (orbax: parameters, Adam state) every
     ``config.checkpoint_every`` steps and at the end, and ``workdir/log.csv`` (step, seconds, losses).
-    ``max_steps`` stops early (a killed run); rerunning resumes. ``data`` defaults to
-    :func:`synthetic_pairs`; a resumed run skips the samples the finished steps used, so that it
-    continues on the same stream. Returns the fine-tuned :class:`Inpainter`.
+    ``max_steps`` stops early (a killed run); rerunning resumes. ``data``: a stream of pairs, taken
+    ``config.batch_size`` at a time (in a multi-process run every process reads the whole stream and
+    keeps its rows); default :func:`synthetic_batches`, which makes only this process's rows. A resumed
+    run skips the pairs the finished steps used, so that it continues on the same stream. Returns the
+    fine-tuned :class:`Inpainter`.
     """
     import orbax.checkpoint as ocp
     from tqdm import tqdm
 
+    if config.batch_size < 1 or config.batch_size % config.devices:
+        raise ValueError(f"the batch size ({config.batch_size}) must be a positive multiple of the devices "
+                         f"({config.devices})")
     model, state = FilterModel.split(inpainter)
     params, rest = nnx.split_state(state, nnx.Param, ...)
     optimizer, step_fn = _compiled_step(model, detector, config)
@@ -252,36 +319,50 @@ def train_tradeoff(
     start = 0
     if mngr.latest_step() is not None:
         start = int(mngr.latest_step())
-        target = {str(i): np.asarray(a) for i, a in enumerate(leaves)}
+        target = {str(i): np.asarray(a) for i, a in enumerate(leaves)}  # host copies: any device or process count
         restored = mngr.restore(start, args=ocp.args.StandardRestore(target))
         params, opt_state = jax.tree.unflatten(treedef, [jnp.array(np.asarray(restored[str(i)]))
                                                         for i in range(len(leaves))])
-    data = synthetic_pairs(config, model) if data is None else data
-    for _ in range(start):
-        next(data)
+    mesh = data_mesh(config.devices)
+    params, rest, opt_state, detector_params, weights = replicate(
+        (params, rest, opt_state, detector_params, weights), mesh)
+    b = config.batch_size
+    rows = local_rows(b)  # this process's rows of every batch (all of them in one process)
+    if data is None:
+        batches = synthetic_batches(config, model, rows, start)
+    else:
+        for _ in range(start * b):
+            next(data)
+        batches = _batches_of(data, b, rows)
     end = config.steps if max_steps is None else min(max_steps, config.steps)
     log_path = workdir / "log.csv"
-    trim_log(log_path, start)  # drop rows logged after the checkpoint we resume from, and a row cut short
-    bar = tqdm(range(start, end), initial=start, total=config.steps, disable=not progress, desc="tradeoff")
+    primary = jax.process_index() == 0  # writes the log
+    if primary:
+        trim_log(log_path, start)  # drop rows logged after the checkpoint we resume from, and a row cut short
+    bar = tqdm(range(start, end), initial=start, total=config.steps, disable=not (progress and primary),
+               desc="tradeoff")
     for step in bar:
-        sample = next(data)
+        pairs = next(batches)
+        sample = pairs[0] if b == 1 else shard_batch(stack_samples(pairs), mesh)
         t0 = time.perf_counter()
         params, opt_state, logs = step_fn(params, rest, opt_state, sample, detector_params, weights)
-        logs = {k: float(v) for k, v in logs.items()}
+        logs = {k: float(v) for k, v in to_host(logs).items()}
         dt = time.perf_counter() - t0
         if not all(np.isfinite(v) for k, v in logs.items() if k != "accuracy"):
             raise FloatingPointError(f"step {step + 1}: non-finite loss {logs}; the last checkpoint is step {start}")
         bar.set_postfix({k: f"{v:.4f}" for k, v in logs.items() if k != "acc_skipped"})
-        with log_path.open("a") as f:
-            if f.tell() == 0:
-                f.write("step,seconds," + ",".join(logs) + "\n")
-            f.write(f"{step + 1},{dt:.3f}," + ",".join(f"{v:.6f}" for v in logs.values()) + "\n")
+        if primary:
+            with log_path.open("a") as f:
+                if f.tell() == 0:
+                    f.write("step,seconds," + ",".join(logs) + "\n")
+                f.write(f"{step + 1},{dt:.3f}," + ",".join(f"{v:.6f}" for v in logs.values()) + "\n")
         done = step + 1
         if done % config.checkpoint_every == 0 or done == end:
-            leaves = jax.tree.leaves((params, opt_state))
-            mngr.save(done, args=ocp.args.StandardSave({str(i): np.asarray(a) for i, a in enumerate(leaves)}))
+            leaves = jax.tree.leaves((params, opt_state))  # replicated: orbax writes each array once
+            mngr.save(done, args=ocp.args.StandardSave({str(i): a for i, a in enumerate(leaves)}))
             start = done
     mngr.wait_until_finished()
     mngr.close()
+    params, rest = jax.tree.map(jnp.asarray, to_host((params, rest)))
     eg, ig = nnx.merge(model.graphdef, nnx.merge_state(params, rest))
     return Inpainter(eg, ig, model.config, model.use_edge_model)
