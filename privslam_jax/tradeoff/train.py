@@ -251,7 +251,8 @@ def tradeoff_step(
     Pure: jit it with the keyword arguments bound."""
     grad_fn = functools.partial(pair_gradients, model=model, detector=detector, config=config)
     if sample.target.ndim == 4:  # a batch: the pairs side by side, then their mean
-        grads, logs = jax.vmap(grad_fn, in_axes=(None, None, 0, None, None))(params, rest, sample, detector_params, weights)
+        per_pair = jax.vmap(grad_fn, in_axes=(None, None, 0, None, None))
+        grads, logs = per_pair(params, rest, sample, detector_params, weights)
         grads = jax.tree.map(lambda g: jnp.mean(g, axis=0), grads)
         logs = {k: jnp.mean(v) for k, v in logs.items()}  # (in the single pair's order: the log's columns)
     else:
