@@ -19,6 +19,10 @@ paired change of the headline ATE.  Monocular runs are repeated with ``--ignore-
 images, and the depth map would still carry the removed objects' shapes.
 
 - KITTI seq1: 5 runs with RANSAC seeds 0-4 on the same 51 frames.
+- Loop worlds (issue 16): ``SynthConfig(num_frames=640, seed=w, stereo=True, route="loop")`` for
+  w = 7, 11, 12, 13, 14 (``experiments/loop_closing.py``'s worlds: a 463 m lap around 3 × 2 blocks,
+  then ~40 m of the first street again), stereo and mono, RANSAC seed 0, each without and with
+  ``SlamConfig.loop_closing``.  Every other row runs without loop closing.
 - Synthetic: 5 worlds, ``SynthConfig(num_frames=300, seed=w, stereo=True)`` for w = 0-4 (640×192,
   8 m/s, 220-240 m each, every one with a 90° turn: world 0 turns over frames 142-162 and 257-276,
   world 1 first around frame 82, worlds 2-4 around frame 142), one run each with RANSAC seed w, so
@@ -29,6 +33,7 @@ Command:
     python experiments/table4_ate.py --jobs 2              # full: 5 + 15 original runs, 5 + 10 per filter
     python experiments/table4_ate.py --seeds 2 --frames 60 # quick look
     python experiments/table4_ate.py --skip-kitti          # synthetic rows only
+    python experiments/table4_ate.py --skip-kitti --skip-synth --jobs 2  # the loop worlds only
     python experiments/table4_ate.py --jobs 2 --resume runs.jsonl  # keep finished runs across restarts
     python experiments/table4_ate.py --filters edgeconnect,black     # other privacy variants (--filters '' : none)
 
@@ -37,6 +42,11 @@ run about 2 min idle (stereo, RGB-D) to 3 min (mono), several times more on a lo
 rendering a 300-frame stereo world about 1 min; filtering one (both cameras, detection + fill) about
 2.5 min.  ``--jobs 2`` runs two at a time; with it, the privacy rows of the two default filters took
 about 40 min (filtering included) on top of the original rows.
+
+Besides accuracy, each row counts what the run went through (issue 16 item 4): frames lost (no
+pose from tracking), relocalisations, Atlas maps started, loops closed.  A loop-world run took 70-143 s
+with ``--jobs 2`` (mono with loop closing the longest), rendering a loop world about 2 min: the loop
+rows about 24 min in all.
 
 Expected result (acceptance, issue 5 item 5): KITTI seq1 every frame tracked, Sim(3) ATE RMSE ≤ 0.10 m
 (COLMAP offline: 0.023 m); synthetic stereo SE(3) ATE ≤ 0.5 % of the path length, RGB-D ≤ 0.5 %,
@@ -83,6 +93,12 @@ class Config:
     """Synthetic modes run on filtered frames, of those in ``synth_modes`` (KITTI seq1 is mono)."""
     masked_modes: tuple[str, ...] = ("mono",)
     """Modes also run on filtered frames with ``--ignore-masked`` (no features on the filled regions)."""
+    loop_worlds: tuple[int, ...] = (7, 11, 12, 13, 14)
+    """Loop-route world seeds (``experiments/loop_closing.py``'s), run without and with loop closing."""
+    loop_frames: int = 640
+    """Frames of a loop world (one lap and ~40 m again)."""
+    loop_modes: tuple[str, ...] = ("stereo", "mono")
+    """Modes run on the loop worlds."""
     out: str = "results/table4_ate.md"
     """Markdown output."""
 
@@ -91,13 +107,16 @@ def get_config() -> Config:
     return Config()
 
 
-def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.ndarray, ignore=None) -> dict:
-    """One SLAM run and its metrics (ATE, RPE, path length, tracked frames, timings)."""
+def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.ndarray, ignore=None,
+         loop_closing: bool = False) -> dict:
+    """One SLAM run and its metrics (ATE, RPE, path length, tracked frames, relocalisations, maps,
+    loops, timings)."""
     from privslam_jax.metrics.trajectory import ate, rpe
     from privslam_jax.slam.system import SlamConfig, run_slam
 
     t0 = time.perf_counter()
-    res = run_slam(frames, camera, SlamConfig(mode=mode, seed=seed), timestamps=timestamps, ignore=ignore)
+    res = run_slam(frames, camera, SlamConfig(mode=mode, seed=seed, loop_closing=loop_closing), timestamps=timestamps,
+                   ignore=ignore)
     wall = time.perf_counter() - t0
     T = np.asarray(res.trajectory.as_matrices(), np.float64)
     n = T.shape[0]
@@ -124,19 +143,23 @@ def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.nd
         "rpe_rot": rr.rmse,
         "path": path,
         "keyframes": len(res.keyframe_indices),
+        "relocalisations": sum(e.startswith("relocalised") for e in res.events),
+        "maps": 1 + sum(e.startswith("new map") for e in res.events),
+        "loops": len(res.loops) if loop_closing else None,
         "wall_s": wall,
         "track_ms": float(np.nanmedian(track) * 1e3),
     }
 
 
-def _seq_job(path: str, mode: str, seed: int, n_frames: int | None, ignore_masked: bool = False) -> dict:
+def _seq_job(path: str, mode: str, seed: int, n_frames: int | None, ignore_masked: bool = False,
+             loop_closing: bool = False) -> dict:
     """One run on a KITTI-layout sequence folder (module-level: picklable for the process pool)."""
     from privslam_jax.slam.outputs import load_sequence_frames, masked_regions
 
     seq, frames, n = load_sequence_frames(path, mode, n_frames)
     ignore = masked_regions(seq, n) if ignore_masked else None
     try:
-        return _run(frames, seq.camera, mode, seed, seq.timestamps[:n], seq.poses[:n], ignore)
+        return _run(frames, seq.camera, mode, seed, seq.timestamps[:n], seq.poses[:n], ignore, loop_closing)
     except Exception as err:  # noqa: BLE001 - a crashing run is a result: reported, the others go on
         import traceback
 
@@ -162,11 +185,13 @@ class Task(NamedTuple):
     """Row of the original frames this run is paired with."""
     ignore_masked: bool = False
     """No features where the filter's ``masks/`` is nonzero (``privslam slam --ignore-masked``)."""
+    loop_closing: bool = False
+    """``SlamConfig.loop_closing``."""
 
 
 def _job_args(t: Task) -> tuple:
     """The arguments of :func:`_seq_job` for ``t``."""
-    return t.path, t.mode, t.seed, t.frames, t.ignore_masked
+    return t.path, t.mode, t.seed, t.frames, t.ignore_masked, t.loop_closing
 
 
 def _kitti_tasks(cfg: Config) -> list[Task]:
@@ -242,6 +267,28 @@ def _synth_tasks(cfg: Config, synth_dir: str | None) -> list[Task]:
     return tasks + filtered
 
 
+def _loop_tasks(cfg: Config, synth_dir: str | None) -> list[Task]:
+    """Render each loop world once (if needed); one run per world and mode, without and with loop closing."""
+    from privslam_jax.data.kitti_write import write_kitti_sequence
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence
+    from privslam_jax.runs import run_is_complete
+
+    root = Path(synth_dir or Path(tempfile.gettempdir()) / "privslam_table4_synth_loops")
+    name = f"loop worlds {', '.join(map(str, cfg.loop_worlds))} ({cfg.loop_frames} frames)"
+    tasks = []
+    for w in cfg.loop_worlds:
+        out = root / f"loop{w}_{cfg.loop_frames}"
+        if not run_is_complete(out / "sequences/synth"):
+            print(f"rendering loop world {w} into {out}", flush=True)
+            write_kitti_sequence(make_sequence(SynthConfig(num_frames=cfg.loop_frames, seed=w, stereo=True, route="loop")),
+                                 str(out), overwrite=True)
+        for lc in (False, True):
+            row = f"{name}, loop closing" if lc else name
+            tasks += [Task(row, str(out / "sequences/synth"), mode, cfg.loop_frames, 0, base=row, loop_closing=lc)
+                      for mode in cfg.loop_modes]
+    return tasks
+
+
 def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list[dict]:
     """Every task, ``jobs`` processes at a time; results in task order (each tagged with its row).
 
@@ -252,7 +299,8 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
     import json
 
     def key(t: Task) -> str:
-        return f"{t.path}|{t.mode}|{t.seed}|{t.frames}" + ("|masked" if t.ignore_masked else "")
+        return (f"{t.path}|{t.mode}|{t.seed}|{t.frames}" + ("|masked" if t.ignore_masked else "")
+                + ("|loop closing" if t.loop_closing else ""))
 
     done: dict[str, dict] = {}
     if resume is not None and resume.is_file():
@@ -306,8 +354,20 @@ def _fmt(runs: list[dict], key: str, pct: bool = False, digits: int = 3) -> str:
     return s
 
 
+def _counts(runs: list[dict]) -> str:
+    """Cells of frames lost, relocalisations (both summed over the runs), Atlas maps (the most one run
+    started) and loops closed (summed; ``off`` without loop closing).  ``—``: a run recorded before
+    these counts existed (``--resume`` files)."""
+    if any(k not in r for r in runs for k in ("relocalisations", "maps", "loops")):
+        return f"{sum(r['frames'] - r['tracked'] for r in runs)} | — | — | —"
+    loops = [r["loops"] for r in runs]
+    return (f"{sum(r['frames'] - r['tracked'] for r in runs)} | {sum(r['relocalisations'] for r in runs)} | "
+            f"{max(r['maps'] for r in runs)} | {'off' if None in loops else sum(loops)}")
+
+
 def _filter_label(r: dict) -> str:
-    return r["filter"] + (", masked features" if r.get("masked") else "")
+    return r["filter"] + (", masked features" if r.get("masked") else "") + (
+        ", loop closing" if r.get("loops") is not None else "")
 
 
 def _privacy_lines(rows: list[tuple[str, str, list[dict]]]) -> list[str]:
@@ -373,25 +433,27 @@ def _head_to_head_lines(rows: list[tuple[str, str, list[dict]]]) -> list[str]:
 
 
 def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path, command: str = "python experiments/table4_ate.py --jobs 2") -> str:
-    kitti_seeds = sorted({r["seed"] for name, _, runs in rows if name.startswith("KITTI") for r in runs}) or [0]
+    kitti_seeds = sorted({r["seed"] for name, _, runs in rows if name.startswith("KITTI") for r in runs})
+    kitti = f"KITTI: RANSAC seeds {kitti_seeds[0]}-{kitti_seeds[-1]} on one sequence; " if kitti_seeds else ""
     lines = [
         "# Table 4 — SLAM trajectory accuracy on original and privacy-filtered frames",
         "",
         f"Written by `{command}` (see its header).  Median [min, max] over "
-        f"the runs of a row (KITTI: RANSAC seeds {kitti_seeds[0]}-{kitti_seeds[-1]} on one sequence; synthetic: one world per run, one run each); "
+        f"the runs of a row ({kitti}synthetic: one world per run, one run each); "
         "ATE in metres (percentage: median over runs of ATE / that run's path length), RPE per frame "
         "(translation m, rotation deg; Sim(3)-aligned for mono).  The headline metric is SE(3) ATE for "
         "stereo/RGB-D and Sim(3) ATE for mono.  Rows named '<method> filter' ran on frames whose detected "
         "privacy objects were removed by that method (see the header of the script).",
         "",
-        "| sequence | mode | runs | tracked | ATE SE(3) | ATE Sim(3) | RPE trans | RPE rot | keyframes | track ms (median) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| sequence | mode | runs | tracked | ATE SE(3) | ATE Sim(3) | RPE trans | RPE rot | keyframes | track ms (median) "
+        "| frames lost | relocalisations | maps | loops closed |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, mode, all_runs in rows:
         runs = [r for r in all_runs if "error" not in r]
         crashed = len(all_runs) - len(runs)
         if not runs:
-            lines.append(f"| {name} | {mode} | {len(all_runs)} | every run crashed (see below) |" + " |" * 6)
+            lines.append(f"| {name} | {mode} | {len(all_runs)} | every run crashed (see below) |" + " |" * 10)
             continue
         paths = [r["path"] for r in runs]
         lines.append(
@@ -400,26 +462,31 @@ def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path, command:
             f"{sum(r['tracked'] for r in runs)} / {sum(r['frames'] for r in runs)} | "
             f"{_fmt(runs, 'ate_se3', True)} | {_fmt(runs, 'ate_sim3', True)} | "
             f"{_fmt(runs, 'rpe_trans', digits=4)} | {_fmt(runs, 'rpe_rot', digits=4)} | "
-            f"{int(np.median([r['keyframes'] for r in runs]))} | {np.median([r['track_ms'] for r in runs]):.0f} |"
+            f"{int(np.median([r['keyframes'] for r in runs]))} | {np.median([r['track_ms'] for r in runs]):.0f} | "
+            f"{_counts(runs)} |"
         )
     lines += ["", "Reference: COLMAP (offline SfM, all frames) reaches Sim(3) ATE 0.023 m on KITTI seq1.  "
               "Acceptance (issue 5): KITTI seq1 Sim(3) ≤ 0.10 m; synthetic stereo SE(3) ≤ 0.5 % of the path, "
               "RGB-D ≤ 0.5 %, mono Sim(3) ≤ 1 %.  track ms: median per-frame extraction + tracking "
-              "(no mapping) on the machine and load of the run.", "",
+              "(no mapping) on the machine and load of the run.  Frames lost and relocalisations: totals over "
+              "the row's runs; maps: the most Atlas maps one run started; loops closed: total (off: loop closing "
+              "not enabled for the row).", "",
               *_privacy_lines(rows),
               *_head_to_head_lines(rows),
               "## Every run", "",
-              "| sequence | filter | mode | RANSAC seed | tracked | path m | ATE SE(3) m | ATE Sim(3) m | keyframes | events |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "| sequence | filter | mode | RANSAC seed | tracked | path m | ATE SE(3) m | ATE Sim(3) m | keyframes | events "
+              "| frames lost | relocalisations | maps | loops closed |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for _, mode, runs in rows:
         for r in runs:
             seq = Path(r["sequence"])
             seq = seq.parent.parent.name if seq.name == "synth" else seq.name  # <root>/world<w>/sequences/synth
             if "error" in r:
-                lines.append(f"| {seq} | {_filter_label(r)} | {mode} | {r['seed']} | crashed: {r['error']} |" + " |" * 5)
+                lines.append(f"| {seq} | {_filter_label(r)} | {mode} | {r['seed']} | crashed: {r['error']} |" + " |" * 9)
                 continue
             lines.append(f"| {seq} | {_filter_label(r)} | {mode} | {r['seed']} | {r['tracked']} / {r['frames']} | "
-                         f"{r['path']:.1f} | {r['ate_se3']:.3f} | {r['ate_sim3']:.3f} | {r['keyframes']} | {r['events']} |")
+                         f"{r['path']:.1f} | {r['ate_se3']:.3f} | {r['ate_sim3']:.3f} | {r['keyframes']} | {r['events']} | "
+                         f"{_counts([r])} |")
     text = "\n".join(lines + [""])
     path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, text)
@@ -432,7 +499,10 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=None, help="synthetic frames (default 300)")
     p.add_argument("--synth-dir", default=None, help="where the synthetic worlds are rendered (reused when present)")
     p.add_argument("--skip-kitti", action="store_true")
-    p.add_argument("--skip-synth", action="store_true")
+    p.add_argument("--skip-synth", action="store_true", help="skip the synthetic worlds without loops")
+    p.add_argument("--skip-loops", action="store_true", help="skip the loop worlds")
+    p.add_argument("--loop-worlds", default=None, help="comma-separated loop-world seeds (default 7,11,12,13,14)")
+    p.add_argument("--loop-frames", type=int, default=None, help="frames of a loop world (default 640)")
     p.add_argument("--modes", default=None, help="comma-separated synthetic modes (default stereo,rgbd,mono)")
     p.add_argument("--filters", default=None,
                    help="comma-separated privacy filters run as extra rows (default edgeconnect,telea; '' for none)")
@@ -456,10 +526,15 @@ def main() -> None:
             raise SystemExit(f"unknown filter(s) {sorted(unknown)}; choose from {', '.join(FILTER_METHODS)}")
     if a.out is not None:
         cfg = dataclasses.replace(cfg, out=a.out)
+    if a.loop_worlds is not None:
+        cfg = dataclasses.replace(cfg, loop_worlds=tuple(int(w) for w in a.loop_worlds.split(",") if w))
+    if a.loop_frames is not None:
+        cfg = dataclasses.replace(cfg, loop_frames=a.loop_frames)
     tasks = [] if a.skip_kitti else _kitti_tasks(cfg)
     tasks += [] if a.skip_synth else _synth_tasks(cfg, a.synth_dir)
+    tasks += [] if a.skip_loops or not cfg.loop_worlds else _loop_tasks(cfg, a.synth_dir)
     if not tasks:
-        raise SystemExit("nothing to run: KITTI needs ../shared, and --skip-synth was given")
+        raise SystemExit("nothing to run: KITTI needs ../shared, and --skip-synth and --skip-loops were given")
     command = "python experiments/table4_ate.py " + " ".join(sys.argv[1:])
     print(write_markdown(_rows(_run_tasks(tasks, a.jobs, a.resume)), ROOT / cfg.out, command.strip()))
 

@@ -73,3 +73,32 @@ def test_head_to_head_names_the_winner_only_when_wilcoxon_says_so(tmp_path):
     cells = rows["black − edgeconnect"]
     assert cells[6] == f"{wilcoxon(d2).pvalue:.3f}"
     assert cells[7] == ("neither (p ≥ 0.05)" if wilcoxon(d2).pvalue >= 0.05 else ("black" if np.median(d2) < 0 else "edgeconnect"))
+
+
+def test_counts_of_lost_frames_relocalisations_maps_and_loops(tmp_path):
+    """Issue 16 item 4's columns, per row and per run, against sums and maxima taken here; ``off`` for a
+    row without loop closing and ``—`` for a run recorded before the counts existed."""
+    t4 = _load()
+    rng = np.random.default_rng(2)
+    base = "loop worlds 7 (640 frames)"
+    runs = []
+    for lc in (False, True):
+        for s in range(4):
+            r = _run(f"{base}, loop closing" if lc else base, base, "none", "mono", s, 1.0, 0.5)
+            r.update(tracked=int(rng.integers(5, 11)), relocalisations=int(rng.integers(0, 3)),
+                     maps=int(rng.integers(1, 4)), loops=int(rng.integers(0, 3)) if lc else None)
+            runs.append(r)
+    legacy = _run("KITTI seq1 (51 frames)", "KITTI seq1 (51 frames)", "none", "mono", 0, 1.0, 0.5)
+    text = t4.write_markdown(t4._rows(runs + [legacy]), tmp_path / "t4.md")
+    table = text.split("## Every run")[0]
+    rows = {ln.split("|")[1].split(", path")[0].strip(): [c.strip() for c in ln.split("|")[1:-1]]
+            for ln in table.splitlines() if ln.startswith("| loop worlds") or ln.startswith("| KITTI")}
+    for name, group in ((base, runs[:4]), (f"{base}, loop closing", runs[4:])):
+        cells = rows[name][-4:]
+        assert cells[0] == str(sum(10 - r["tracked"] for r in group))
+        assert cells[1] == str(sum(r["relocalisations"] for r in group))
+        assert cells[2] == str(max(r["maps"] for r in group))
+        assert cells[3] == ("off" if group[0]["loops"] is None else str(sum(r["loops"] for r in group)))
+    assert rows["KITTI seq1 (51 frames)"][-4:] == ["0", "—", "—", "—"]
+    every = [ln for ln in text.split("## Every run")[1].splitlines() if ln.startswith("| world")]
+    assert len(every) == 9 and sum(", loop closing |" in ln for ln in every) == 4
