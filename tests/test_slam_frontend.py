@@ -11,6 +11,7 @@ from privslam_jax.slam.frontend import (
     OrbConfig,
     extract_orb,
     hamming_pairs,
+    knn2,
     match_descriptors,
     _sad_refine,
     rotation_consistent,
@@ -35,6 +36,22 @@ def test_hamming_pairs_matches_opencv():
     b = rng.integers(0, 256, (50, 32), dtype=np.uint8)
     ref = [cv2.norm(a[i], b[i], cv2.NORM_HAMMING) for i in range(50)]
     np.testing.assert_array_equal(hamming_pairs(a, b), np.array(ref, np.int64))
+
+
+def test_knn2_equals_numpy_brute_force_and_opencv_knn_match_with_ties():
+    """Descriptors drawn from 12 distinct rows, so most distances tie: the two nearest ``b`` rows by a
+    numpy popcount and a stable sort (ties to the lower index), and ``cv2.BFMatcher.knnMatch``'s."""
+    rng = np.random.default_rng(3)
+    pool = rng.integers(0, 256, (12, 32), dtype=np.uint8)
+    a, b = pool[rng.integers(0, 12, 300)], pool[rng.integers(0, 12, 200)]
+    dist, idx = knn2(a, b)
+    d = np.unpackbits(a[:, None, :] ^ b[None, :, :], axis=-1).sum(-1)
+    ref = np.argsort(d, axis=1, kind="stable")[:, :2]
+    assert dist.shape == idx.shape == (300, 2) and (dist[:, 0] == dist[:, 1]).mean() > 0.5  # ties everywhere
+    np.testing.assert_array_equal(idx, ref)
+    np.testing.assert_array_equal(dist, np.take_along_axis(d, ref, axis=1))
+    knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(a, b, k=2)
+    np.testing.assert_array_equal(idx, [[m.trainIdx for m in ms] for ms in knn])
 
 
 def test_match_descriptors_equals_brute_force_and_handles_no_match():

@@ -31,6 +31,7 @@ __all__ = [
     "to_gray_u8",
     "extract_orb",
     "hamming_pairs",
+    "knn2",
     "match_descriptors",
     "ratio_matches",
     "rotation_consistent",
@@ -204,18 +205,24 @@ def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray, bins: int = 30
     return np.isin(b, top)
 
 
+def knn2(desc_a: np.ndarray, desc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two nearest ``b`` rows of every ``a`` row by Hamming distance: ``(dist, idx)``, both
+    ``(len(a), 2)`` int32, nearest first, ties to the lower ``b`` index (OpenCV's ``batchDistance``,
+    the kernel of ``cv2.BFMatcher.knnMatch``; without its per-match Python objects).  Needs
+    ``len(b) >= 2``."""
+    return cv2.batchDistance(np.ascontiguousarray(desc_a), np.ascontiguousarray(desc_b), cv2.CV_32S,
+                             normType=cv2.NORM_HAMMING, K=2)
+
+
 def ratio_matches(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8, max_dist: int = TH_LOW) -> np.ndarray:
     """Brute-force Hamming matches ``a → b`` that pass ``max_dist`` and Lowe's ratio test, one per ``b`` row
     (the closest); ``(M, 2)`` int index pairs ``(i_a, i_b)``, in no particular order."""
     if len(desc_a) == 0 or len(desc_b) < 2:
         return np.zeros((0, 2), np.int64)
-    knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(np.ascontiguousarray(desc_a), np.ascontiguousarray(desc_b), k=2)
-    q = np.array([m[0].queryIdx for m in knn if len(m) == 2], np.int64)
-    t = np.array([m[0].trainIdx for m in knn if len(m) == 2], np.int64)
-    d1 = np.array([m[0].distance for m in knn if len(m) == 2])
-    d2 = np.array([m[1].distance for m in knn if len(m) == 2])
+    dist, idx = knn2(desc_a, desc_b)
+    d1, d2 = dist[:, 0], dist[:, 1]
     ok = (d1 <= max_dist) & (d1 < ratio * d2)
-    q, t, d1 = q[ok], t[ok], d1[ok]
+    q, t, d1 = np.flatnonzero(ok), idx[ok, 0].astype(np.int64), d1[ok]
     # one match per b row: keep the smallest distance
     order = np.lexsort((d1, t))
     first = np.r_[True, np.diff(t[order]) != 0] if len(order) else np.zeros(0, bool)
