@@ -30,7 +30,7 @@ images, and the depth map would still carry the removed objects' shapes.
   ``--synth-dir`` (default: a folder in the system temp dir, outside the repository).
 
 Command:
-    python experiments/table4_ate.py --jobs 2              # full: 5 + 15 original runs, 5 + 10 per filter
+    python experiments/table4_ate.py --jobs 2              # full: 5 + 15 original runs, 5 + 10 per filter, 20 on loop worlds
     python experiments/table4_ate.py --seeds 2 --frames 60 # quick look
     python experiments/table4_ate.py --skip-kitti          # synthetic rows only
     python experiments/table4_ate.py --skip-kitti --skip-synth --jobs 2  # the loop worlds only
@@ -494,6 +494,8 @@ def write_markdown(rows: list[tuple[str, str, list[dict]]], path: Path, command:
 
 
 def main() -> None:
+    from privslam_jax.argtypes import positive_int, seed_list
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=None, help="KITTI RANSAC seeds and synthetic worlds (default 5)")
     p.add_argument("--frames", type=int, default=None, help="synthetic frames (default 300)")
@@ -501,8 +503,9 @@ def main() -> None:
     p.add_argument("--skip-kitti", action="store_true")
     p.add_argument("--skip-synth", action="store_true", help="skip the synthetic worlds without loops")
     p.add_argument("--skip-loops", action="store_true", help="skip the loop worlds")
-    p.add_argument("--loop-worlds", default=None, help="comma-separated loop-world seeds (default 7,11,12,13,14)")
-    p.add_argument("--loop-frames", type=int, default=None, help="frames of a loop world (default 640)")
+    p.add_argument("--loop-worlds", type=seed_list, default=None,
+                   help="loop-world seeds, a list and ranges such as 7,11-14 (the default)")
+    p.add_argument("--loop-frames", type=positive_int, default=None, help="frames of a loop world (default 640)")
     p.add_argument("--modes", default=None, help="comma-separated synthetic modes (default stereo,rgbd,mono)")
     p.add_argument("--filters", default=None,
                    help="comma-separated privacy filters run as extra rows (default edgeconnect,telea; '' for none)")
@@ -527,7 +530,9 @@ def main() -> None:
     if a.out is not None:
         cfg = dataclasses.replace(cfg, out=a.out)
     if a.loop_worlds is not None:
-        cfg = dataclasses.replace(cfg, loop_worlds=tuple(int(w) for w in a.loop_worlds.split(",") if w))
+        from privslam_jax.data.synthetic import parse_seeds
+
+        cfg = dataclasses.replace(cfg, loop_worlds=tuple(parse_seeds(a.loop_worlds)))
     if a.loop_frames is not None:
         cfg = dataclasses.replace(cfg, loop_frames=a.loop_frames)
     tasks = [] if a.skip_kitti else _kitti_tasks(cfg)
