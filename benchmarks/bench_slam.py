@@ -1,6 +1,6 @@
 """Per-stage SLAM timings at 1226×370 after compilation: monocular on KITTI seq1, or stereo.
 
-Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo]
+Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo] [--mapper-busy-frames N]
 
 ``--stereo`` runs stereo SLAM on a synthetic stereo street at KITTI's size (1226×370, seed 0;
 ``seq1`` in ``../shared`` has no right images), so that the stereo matching stage is timed too.
@@ -16,6 +16,7 @@ Numbers on a shared machine are noisy: say so when quoting them.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -34,6 +35,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=51)
     p.add_argument("--stereo", action="store_true", help="stereo SLAM on a synthetic 1226x370 stereo street")
+    p.add_argument("--mapper-busy-frames", type=int, default=None,
+                   help="SlamConfig.mapper_busy_frames (default: SlamConfig's)")
     a = p.parse_args()
     from privslam_jax.slam.frontend import to_gray_u8
     from privslam_jax.slam.system import SlamConfig, run_slam
@@ -54,6 +57,8 @@ def main() -> None:
         seq = KittiSequence(shared / "data/kitti_odometry/sequences/seq1", grey=True)
         n, camera, name, config = min(a.frames, len(seq)), seq.camera, "KITTI seq1", SlamConfig()
         images = [to_gray_u8(seq.image(i)) for i in range(n)]
+    if a.mapper_busy_frames is not None:
+        config = dataclasses.replace(config, mapper_busy_frames=a.mapper_busy_frames)
     t0 = time.perf_counter()
     run_slam(images, camera, config)
     first = time.perf_counter() - t0
@@ -71,7 +76,7 @@ def main() -> None:
     tracking = tm["total"] - np.nan_to_num(tm.get("mapping", np.zeros(n)))
     rows = [(k, v) for k, v in tm.items()] + [("tracking (total − mapping)", tracking),
                                               ("reference: cv2 ORB detectAndCompute 2000", np.array(ref))]
-    print(f"{name} ({config.mode}), {n} frames, {res.tracked.sum()} tracked, {len(res.keyframe_indices)} keyframes")
+    print(f"{name} ({config.mode}, mapper_busy_frames={config.mapper_busy_frames}), {n} frames, {res.tracked.sum()} tracked, {len(res.keyframe_indices)} keyframes")
     print(f"{'stage':45s} {'runs':>5s} {'median ms':>10s} {'mean ms':>10s}")
     for k, v in rows:
         v = np.asarray(v)

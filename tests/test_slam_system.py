@@ -57,6 +57,51 @@ def test_determinism(seq1, run_a):
     np.testing.assert_array_equal(np.asarray(run_a.map.xyz), np.asarray(res_b.map.xyz))
 
 
+def test_no_monocular_keyframe_while_the_mapper_is_busy(seq1):
+    """ORB-SLAM's tracking inserts no monocular keyframe while local mapping still works on the last
+    one; ``mapper_busy_frames`` models that busy time in frames.  An always-idle mapper (0) takes
+    consecutive frames as keyframes on this drive, a mapper busy for one frame never does (after the
+    two-view initialisation), and every frame is still tracked."""
+    seq, images = seq1
+    gaps = {}
+    for busy in (0, 1):
+        res = run_slam(images, seq.camera, SlamConfig(mapper_busy_frames=busy))
+        assert res.tracked.all(), res.events
+        gaps[busy] = np.diff(res.keyframe_indices[1:])
+    assert gaps[0].min() == 1
+    assert gaps[1].min() >= 2 and len(gaps[1]) < len(gaps[0])
+
+
+def test_run_slam_equals_the_plain_track_loop(seq1, run_a):
+    """run_slam extracts frame t + 1 in a worker thread while frame t is tracked and mapped: the
+    result must be that of calling Slam.track frame by frame, bit for bit."""
+    seq, images = seq1
+    slam = Slam(seq.camera, SlamConfig())
+    for image in images:
+        slam.track(image)
+    plain = slam.result(seq.timestamps[:N_FRAMES])
+    np.testing.assert_array_equal(np.asarray(run_a.trajectory.poses.wxyz_xyz), np.asarray(plain.trajectory.poses.wxyz_xyz))
+    np.testing.assert_array_equal(np.asarray(run_a.map.xyz), np.asarray(plain.map.xyz))
+    np.testing.assert_array_equal(run_a.keyframe_indices, plain.keyframe_indices)
+    assert run_a.events == plain.events
+
+
+def test_run_slam_reports_a_bad_frame_by_its_index_and_reads_no_further(seq1):
+    seq, images = seq1
+    read = []
+
+    def frames():
+        for i, image in enumerate(images):
+            read.append(i)
+            yield image if i != 3 else image[:100]
+
+    with pytest.raises(ValueError, match="frame 3: image shape"):
+        run_slam(frames(), seq.camera, SlamConfig())
+    assert read == [0, 1, 2, 3]
+    with pytest.raises(ValueError, match=r"fewer masks than frames \(none for frame 2\)"):
+        run_slam(images[:4], seq.camera, SlamConfig(), ignore=[None, None])
+
+
 def test_black_frame_is_reported_not_a_crash(seq1):
     seq, images = seq1
     frames = list(images[:6])
@@ -93,6 +138,8 @@ def test_bad_input_errors():
         slam.track(np.zeros((10, 10), np.uint8))
     with pytest.raises(ValueError, match="mode"):
         SlamConfig(mode="lidar")
+    with pytest.raises(ValueError, match="mapper_busy_frames"):
+        SlamConfig(mapper_busy_frames=-1)
     with pytest.raises(ValueError, match="baseline"):
         Slam(cam, SlamConfig(mode="stereo"))
     with pytest.raises(ValueError, match="depth"):

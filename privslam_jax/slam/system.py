@@ -10,10 +10,12 @@ synchronously right after a keyframe is chosen, so results do not depend on thre
   against the reference keyframe when that fails, then the local map; when lost, relocalisation
   along the motion model (the recent keyframes' points searched around the constant-velocity
   poses, frames possibly dropped) and then by appearance against recent keyframes.  A lost frame gets the motion-model prediction and ``tracked=False``.
-* **Keyframes** (ORB-SLAM ``NeedNewKeyFrame`` with an always-idle mapper): a frame becomes a
-  keyframe when it tracks fewer than ``ratio × `` the reference keyframe's well-observed points
-  (0.9 mono, 0.75 stereo/RGB-D) or ``max_frames_between_kf`` frames passed, and (stereo/RGB-D) when
-  it tracks fewer than 100 close points but sees more than 70 untracked close ones.
+* **Keyframes** (ORB-SLAM ``NeedNewKeyFrame``): a frame becomes a keyframe when it tracks fewer
+  than ``ratio × `` the reference keyframe's well-observed points (0.9 mono, 0.75 stereo/RGB-D) or
+  ``max_frames_between_kf`` frames passed, and (stereo/RGB-D) when it tracks fewer than 100 close
+  points but sees more than 70 untracked close ones; not while the mapper is busy
+  (``mapper_busy_frames`` after a keyframe; stereo/RGB-D only when tracking is weak), as ORB-SLAM's
+  tracking thread waits for an idle local-mapping thread.
 * **Mapping** (:mod:`.mapping`) — culling, triangulation, fusion, local BA.
 * **Loop closing** (:mod:`.loop_closing`, with ``SlamConfig.loop_closing``) — after local mapping:
   bag-of-words candidates, Sim(3)/SE(3) verification, correction, essential graph, global BA.
@@ -28,14 +30,17 @@ synchronously right after a keyframe is chosen, so results do not depend on thre
 * **Output** — like ORB-SLAM's ``SaveTrajectory``, each frame's pose is stored relative to its
   reference keyframe and composed with that keyframe's final (bundle-adjusted) pose.
 
-Determinism: no threads, OpenCV's fixed-seed RANSAC, and correspondence order shuffled by
-``numpy.random.default_rng(seed + …)``: the same input and seed give bit-identical trajectories.
+Determinism: tracking and mapping run in one thread (:func:`run_slam` extracts the next frame's
+features in a second one; they do not depend on the map), OpenCV's fixed-seed RANSAC, and
+correspondence order shuffled by ``numpy.random.default_rng(seed + …)``: the same input and seed
+give bit-identical trajectories.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -97,6 +102,12 @@ class SlamConfig:
     """The same for stereo/RGB-D."""
     max_frames_between_kf: int = 10
     """A keyframe at least this often (ORB-SLAM: the frame rate)."""
+    mapper_busy_frames: int = 1
+    """ORB-SLAM's tracking inserts no keyframe while local mapping is still busy with the previous one
+    (stereo/RGB-D: unless tracking is weak, fewer than a quarter of the reference keyframe's points, or
+    close points are needed).  Deterministic stand-in: the mapper counts as busy for this many frames
+    after each keyframe (``0``: an always-idle mapper, the behaviour before 2026-12-04; 1: local
+    mapping takes 60-100 ms per keyframe here, one frame at KITTI's 10 Hz)."""
     close_depth_baselines: float = 40.0
     """Stereo: points closer than this many baselines are "close" (ORB-SLAM ``ThDepth``)."""
     rgbd_close_depth: float = 20.0
@@ -129,6 +140,8 @@ class SlamConfig:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.new_map_after < 0:
             raise ValueError(f"new_map_after must be >= 0 (0: never start a new map), got {self.new_map_after}")
+        if self.mapper_busy_frames < 0:
+            raise ValueError(f"mapper_busy_frames must be >= 0 (0: an always-idle mapper), got {self.mapper_busy_frames}")
 
 
 @dataclasses.dataclass
@@ -260,10 +273,14 @@ class Slam:
         (the returned pose of such a frame is the tracked one, before local BA refines it).  The
         edge server answers a frame this way and maps while the next one is on its way.
         """
-        self.finish_mapping()
-        idx = len(self.timings)
+        return self.track_frame(*self.features(len(self.timings), image, right, depth, ignore), defer_mapping)
+
+    def features(self, idx: int, image: np.ndarray, right: np.ndarray | None = None,
+                 depth: np.ndarray | None = None, ignore: np.ndarray | None = None) -> tuple[Frame, dict[str, float]]:
+        """The first half of :meth:`track`: frame ``idx``'s ORB features (with stereo / RGB-D depth) and
+        the seconds they took.  Depends only on the images and the configuration, never on the map, so
+        :func:`run_slam` computes frame ``t + 1``'s while frame ``t`` is tracked and mapped."""
         tim: dict[str, float] = {}
-        self.timings.append(tim)
         t0 = time.perf_counter()
         gray = to_gray_u8(image)
         if gray.shape != (self.camera.height, self.camera.width):
@@ -288,17 +305,27 @@ class Slam:
             if depth.shape[:2] != gray.shape:
                 raise ValueError(f"frame {idx}: depth shape {depth.shape} != image {gray.shape}")
             feats.depth = rgbd_depths(depth, feats)
-        frame = Frame(idx, feats)
+        tim["total"] = time.perf_counter() - t0
+        return Frame(idx, feats), tim
+
+    def track_frame(self, frame: Frame, tim: dict[str, float], defer_mapping: bool = False) -> tuple[np.ndarray, bool]:
+        """The second half of :meth:`track`: track (and map) a frame from :meth:`features`; ``tim`` are
+        its timings so far (``total`` grows by the tracking and mapping time).  Frames must come in
+        index order."""
+        self.finish_mapping()
+        if frame.index != len(self.timings):
+            raise ValueError(f"frame {frame.index} out of order: expected frame {len(self.timings)}")
+        self.timings.append(tim)
         t1 = time.perf_counter()
         if not self.initialized:
             self._initialize(frame)
         else:
             self._track(frame, defer_mapping)
         tim["track"] = time.perf_counter() - t1 - tim.get("mapping", 0.0)
-        tim["total"] = time.perf_counter() - t0
-        rel = self.frames_rel[idx]
+        tim["total"] += time.perf_counter() - t1
+        rel = self.frames_rel[frame.index]
         T_c_w = rel[1] @ self.map.keyframes[rel[0]].T_c_w if rel[0] >= 0 else rel[1]
-        return np.linalg.inv(T_c_w), self.tracked[idx]
+        return np.linalg.inv(T_c_w), self.tracked[frame.index]
 
     # ------------------------------------------------------------------ initialisation
     def _initialize(self, frame: Frame) -> None:
@@ -527,6 +554,9 @@ class Slam:
             untracked_close = int((close & (frame.point_ids < 0)).sum())
             need_close = tracked_close < 100 and untracked_close > 70
         c2 = (n_tracked < ratio * n_ref or need_close) and n_tracked > 15
+        if self._frames_since_kf <= cfg.mapper_busy_frames:  # the mapper is busy
+            weak = self.depth_mode and (n_tracked < 0.25 * n_ref or need_close)
+            return bool(weak and n_tracked > 15)
         return bool(c2 or (c1 and n_tracked > 15))
 
     def _insert_keyframe(self, frame: Frame) -> None:
@@ -626,25 +656,46 @@ def run_slam(
     """
     cv2.setRNGSeed(config.seed)
     slam = Slam(camera, config)
-    it = frames
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(frames, total=total, desc=f"slam ({config.mode})", unit="frame")
+    items = iter(frames)
     masks = iter(ignore) if ignore is not None else None
-    for k, item in enumerate(it):
+    end = object()
+
+    def features(k: int):
+        """Frame ``k``'s features (worker thread): read the frame and its mask, extract."""
+        item = next(items, end)
+        if item is end:
+            return end
         mask = next(masks, False) if masks is not None else None
         if mask is False:
             raise ValueError(f"ignore has fewer masks than frames (none for frame {k})")
         if config.mode == "mono":
-            slam.track(item, ignore=mask)
-        elif config.mode == "stereo":
-            left, right = item
-            slam.track(left, right=right, ignore=mask)
-        else:
-            image, depth = item
-            slam.track(image, depth=depth, ignore=mask)
-        if progress:
-            it.set_postfix(kf=len(slam.map.keyframes), pts=int((~slam.map.bad).sum()),
-                           lost=int(len(slam.tracked) - sum(slam.tracked)))
+            return slam.features(k, item, ignore=mask)
+        first, second = item
+        if config.mode == "stereo":
+            return slam.features(k, first, right=second, ignore=mask)
+        return slam.features(k, first, depth=second, ignore=mask)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=f"slam ({config.mode})", unit="frame")
+    # One worker reads and extracts frame k + 1 while this thread tracks and maps frame k: extraction
+    # does not depend on the map, so the results are those of the plain loop (only the order of work
+    # on the two cores changes).
+    try:
+        with ThreadPoolExecutor(1, thread_name_prefix="slam-features") as pool:
+            pending = pool.submit(features, 0)
+            k = 0
+            while (out := pending.result()) is not end:
+                k += 1
+                pending = pool.submit(features, k)
+                slam.track_frame(*out)
+                if bar is not None:
+                    bar.update()
+                    bar.set_postfix(kf=len(slam.map.keyframes), pts=int((~slam.map.bad).sum()),
+                                    lost=int(len(slam.tracked) - sum(slam.tracked)))
+    finally:
+        if bar is not None:
+            bar.close()
     return slam.result(timestamps)
