@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -107,7 +107,7 @@ class SlamConfig:
     (stereo/RGB-D: unless tracking is weak, fewer than a quarter of the reference keyframe's points, or
     close points are needed).  Deterministic stand-in: the mapper counts as busy for this many frames
     after each keyframe (``0``: an always-idle mapper, the behaviour before 2026-12-04; 1: local
-    mapping takes 60-100 ms per keyframe here, one frame at KITTI's 10 Hz)."""
+    mapping takes 100-150 ms per keyframe on 2 CPU cores, about one frame at KITTI's 10 Hz)."""
     close_depth_baselines: float = 40.0
     """Stereo: points closer than this many baselines are "close" (ORB-SLAM ``ThDepth``)."""
     rgbd_close_depth: float = 20.0
