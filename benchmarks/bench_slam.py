@@ -32,10 +32,12 @@ import numpy as np  # noqa: E402
 
 
 def main() -> None:
+    from privslam_jax.argtypes import nonnegative_int
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=51)
     p.add_argument("--stereo", action="store_true", help="stereo SLAM on a synthetic 1226x370 stereo street")
-    p.add_argument("--mapper-busy-frames", type=int, default=None,
+    p.add_argument("--mapper-busy-frames", type=nonnegative_int, default=None,
                    help="SlamConfig.mapper_busy_frames (default: SlamConfig's)")
     a = p.parse_args()
     from privslam_jax.slam.frontend import to_gray_u8
