@@ -8,8 +8,10 @@ the least-squares core (:mod:`privslam_jax.privacy.localize`).  Poses are in the
 
 DIR receives ``poses.txt`` (TUM, camera → world, the localised frames only) and ``queries.txt``
 (``timestamp frame matches inliers localised`` per query frame), both written atomically.  A frame
-that does not localise is listed as such, never given a made-up pose.  Sphere clouds are refused (their
-lines all meet at one point, so the camera's distance is not observable).
+that does not localise is listed as such, never given a made-up pose.  ``--depth`` takes each keypoint's
+depth from the sequence's ``depth/`` maps (as ``privslam slam --mode rgbd`` reads them; e.g. a
+time-of-flight sensor) and solves with it: sphere clouds, whose lines all meet at one point so that the
+camera's distance is not observable from keypoints alone, need it and are refused without it.
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threshold", type=positive_float, default=2.0, help="inlier distance in pixels (default 2)")
     p.add_argument("--min-inliers", type=positive_int, default=12, help="inliers needed to accept a pose (default 12)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="RANSAC seed (default 0)")
+    p.add_argument("--depth", action="store_true",
+                   help="use the sequence's depth/ maps as the keypoints' depth (needed for sphere clouds)")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
@@ -54,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.lines} carries no descriptors, so no image can be matched to its lines: lift a map "
                          "that has them (privslam slam writes map.ply with ORB descriptors; privslam lift keeps them)")
     seq = KittiSequence(args.sequence, grey=True)
+    if args.depth and not seq.has_extra("depth"):
+        raise FileNotFoundError(f"--depth needs a depth/ folder in {seq.path} (z-depth PNGs as privslam synth writes them)")
     n = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
     frames = list(range(0, n, args.every))
     if not frames:
@@ -62,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
     rows, poses, stamps, times = [], [], [], []
     for i in frames:
         t0 = time.perf_counter()
-        loc, uv, _ = localize_image(seq.image(i), lines, desc, K, threshold=args.threshold,
-                                    min_inliers=args.min_inliers, seed=args.seed)
+        loc, uv, _ = localize_image(seq.image(i), lines, desc, K, depth=seq[i].depth if args.depth else None,
+                                    threshold=args.threshold, min_inliers=args.min_inliers, seed=args.seed)
         times.append(time.perf_counter() - t0)
         ts = float(seq.timestamps[i])
         rows.append(f"{ts!r} {i} {len(uv)} {int(loc.inliers.sum())} {int(loc.success)}\n")

@@ -25,9 +25,19 @@ and 6 correspondences determine the pose.
    line cloud must publish to be localised against, and they are an attack surface of their own
    (feature inversion, Pittaluga et al., CVPR 2019); the line cloud hides only the geometry.
 
-A sphere cloud cannot be localised against this way: all its lines meet at the centroid, so the map is
-a central camera and the query's distance from the centroid is not observable (the sphere-cloud paper
-takes it from a depth sensor); :func:`localize_against_lines` refuses it.
+5. **With query depth** (``depth=``: the metric z of each keypoint, from a depth sensor or stereo): the
+   keypoints become 3D points ``X`` of the query camera, and the pose is the one that puts each ``X`` on
+   its map line: generalized *absolute* pose, the map lines again the rays of a generalized camera and
+   the query points its scene (PoseLib's ``gp3p``, 3-point samples, the same far-back ray origins; it
+   returns camera → world).  Inliers and refinement use the point-to-line distance
+   ``‖(R X + t − a) × d‖`` scaled by ``f / z`` — the pixels it spans at the point's depth — so the same
+   ``threshold`` applies.  This is how the sphere-cloud paper localises (Moon et al., "Depth-guided
+   privacy-preserving visual localization using 3D sphere clouds", BMVC 2024: absolute depth from an
+   on-device time-of-flight sensor).
+
+A sphere cloud cannot be localised against from keypoints alone: all its lines meet at the centroid, so
+the map is a central camera and the query's distance from the centroid is not observable;
+:func:`localize_against_lines` refuses it unless ``depth`` is given.
 
 :func:`localize_against_points` is the baseline on the unprotected map: PoseLib's P3P LO-RANSAC with
 its own refinement, on the same correspondences.
@@ -47,7 +57,7 @@ from privslam_jax.solvers import DenseSystem, LMParams, dense_damped_solve, hube
 from privslam_jax.types import LineCloud
 
 __all__ = ["Localization", "localize_against_lines", "localize_against_points", "localize_image", "match_to_map",
-           "line_reprojection_errors"]
+           "line_reprojection_errors", "point_line_errors"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,38 +98,105 @@ def line_reprojection_errors(T_c_w: np.ndarray, uv: np.ndarray, lines: LineCloud
     return np.abs(np.sum(lp[:, :2] * uv, axis=1) + lp[:, 2]) / np.linalg.norm(lp[:, :2], axis=1)
 
 
-@jax.jit
-def _refine(T0: jaxlie.SE3, uv, d, m, K, weights, delta):
-    """Huber LM on the signed pixel distances of the correspondences with ``weights`` 1."""
+def _point_line_offsets(T_w_c: jaxlie.SE3, X, d, a, scale) -> Float[Array, "M 3"]:
+    """``(R X + t − a) × d`` per correspondence, times ``scale`` (``f / z``): its norm is the distance of the
+    query point from its line in pixels at the point's depth."""
+    Xw = X @ T_w_c.rotation().as_matrix().T + T_w_c.translation()[None, :]
+    return jnp.cross(Xw - a, d) * scale[:, None]
+
+
+def _huber_lm(T0: jaxlie.SE3, residuals, weights, delta):
+    """Huber LM over a pose (left increments ``exp(ξ) T``) on ``residuals(T)`` (``(M, k)``: one row per
+    correspondence, Huber on its norm), counting the rows with ``weights`` 1."""
 
     def cost(T):
-        r = _signed_distances(T, uv, d, m, K)
-        return 0.5 * jnp.sum(weights * huber_rho(r * r, delta))
+        r = residuals(T)
+        return 0.5 * jnp.sum(weights * huber_rho(jnp.sum(r * r, axis=1), delta))
 
     def linearise(T):
-        r = _signed_distances(T, uv, d, m, K)
-        J = jax.jacfwd(lambda xi: _signed_distances(jaxlie.SE3.exp(xi) @ T, uv, d, m, K))(jnp.zeros(6, uv.dtype))
-        w = weights * huber_weight(r * r, delta)
-        H = jnp.einsum("n,ni,nj->ij", w, J, J)
-        g = jax.grad(lambda xi: cost(jaxlie.SE3.exp(xi) @ T))(jnp.zeros(6, uv.dtype))
+        r = residuals(T)
+        zero = jnp.zeros(6, r.dtype)
+        J = jax.jacfwd(lambda xi: residuals(jaxlie.SE3.exp(xi) @ T))(zero)
+        w = weights * huber_weight(jnp.sum(r * r, axis=1), delta)
+        H = jnp.einsum("n,nki,nkj->ij", w, J, J)
+        g = jax.grad(lambda xi: cost(jaxlie.SE3.exp(xi) @ T))(zero)
         return DenseSystem(H=H, g=g, cost=cost(T))
 
-    params = LMParams.of(uv.dtype, 30, 1e-4, 1e-10, step_tolerance=1e-10)
+    params = LMParams.of(T0.wxyz_xyz.dtype, 30, 1e-4, 1e-10, step_tolerance=1e-10)
     T, _, summary = levenberg_marquardt(T0, linearise, dense_damped_solve, cost, lambda T, xi: jaxlie.SE3.exp(xi) @ T,
                                         params)
     return T, summary
+
+
+@jax.jit
+def _refine(T0: jaxlie.SE3, uv, d, m, K, weights, delta):
+    """Huber LM on the signed pixel distances of the correspondences with ``weights`` 1 (``T = T_c_w``)."""
+    return _huber_lm(T0, lambda T: _signed_distances(T, uv, d, m, K)[:, None], weights, delta)
+
+
+@jax.jit
+def _refine_with_depth(T0: jaxlie.SE3, X, d, a, scale, weights, delta):
+    """Huber LM on the point-to-line offsets of the correspondences with ``weights`` 1 (``T = T_w_c``)."""
+    return _huber_lm(T0, lambda T: _point_line_offsets(T, X, d, a, scale), weights, delta)
 
 
 def _to_se3(R: np.ndarray, t: np.ndarray) -> jaxlie.SE3:
     return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(R)), jnp.asarray(t))
 
 
+def _matrix(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def point_line_errors(T_c_w: np.ndarray, X: np.ndarray, lines: LineCloud, f: float) -> np.ndarray:
+    """Distance of each query point ``X`` (camera frame, ``(M, 3)``) from its line under ``T_c_w``, in pixels
+    at the point's depth: ``f · ‖(X_w − a) × d‖ / z`` (numpy, float64)."""
+    d = np.asarray(lines.directions, np.float64)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    a = np.cross(d, np.asarray(lines.moments, np.float64))
+    R, t = T_c_w[:3, :3], T_c_w[:3, 3]
+    Xw = (X - t) @ R  # Rᵀ (X − t), row-wise
+    return f * np.linalg.norm(np.cross(Xw - a, d), axis=1) / X[:, 2]
+
+
+def _lo_ransac(n: int, size: int, solve, errors, refine, threshold: float, max_iterations: int, confidence: float,
+               rng: np.random.Generator) -> tuple[np.ndarray | None, np.ndarray, int]:
+    """LO-RANSAC (Chum et al., 2003) over ``size``-samples of ``n`` correspondences: ``solve(sample)`` gives
+    candidate ``T_c_w``, ``errors(T)`` the ``(n,)`` inlier distances, ``refine(T, inliers)`` the local
+    optimisation of each new best.  Returns ``(T, inliers, iterations)`` (``T`` None when nothing had
+    ``size`` inliers)."""
+    best_T, best_in, it, needed = None, np.zeros(n, bool), 0, max_iterations
+    while it < min(needed, max_iterations):
+        it += 1
+        for T in solve(rng.choice(n, size, replace=False)):
+            inl = errors(T) < threshold
+            if inl.sum() > best_in.sum() and inl.sum() >= size:
+                T = refine(T, inl)
+                inl2 = errors(T) < threshold
+                best_T, best_in = (T, inl2) if inl2.sum() >= inl.sum() else (T, inl)
+                w = best_in.mean()
+                needed = int(np.ceil(np.log(1 - confidence) / np.log(max(1e-12, 1 - w**size)))) if w < 1 else 1
+    return best_T, best_in, it
+
+
+def _padded(n: int) -> int:
+    """Rows of a padded refinement problem: one compiled program per power-of-two bucket (≥ 64), not per
+    correspondence count."""
+    return 1 << max(6, int(np.ceil(np.log2(n))))
+
+
 def localize_against_lines(
-    uv: Float[np.ndarray, "M 2"], lines: LineCloud, K: Float[np.ndarray, "3 3"], *, threshold: float = 2.0,
-    max_iterations: int = 2000, confidence: float = 0.9999, min_inliers: int = 12, seed: int = 0,
+    uv: Float[np.ndarray, "M 2"], lines: LineCloud, K: Float[np.ndarray, "3 3"], *,
+    depth: np.ndarray | None = None, threshold: float = 2.0, max_iterations: int = 2000,
+    confidence: float = 0.9999, min_inliers: int = 12, seed: int = 0,
 ) -> Localization:
     """Pose of the camera that saw keypoints ``uv`` (pixels) of map lines ``lines`` (line ``j`` matched to
-    keypoint ``j``), intrinsics ``K`` (module docstring).  ``threshold``: inlier distance in pixels."""
+    keypoint ``j``), intrinsics ``K`` (module docstring).  ``depth``: ``(M,)`` the keypoints' metric z
+    (module docstring, 5.; needed for sphere clouds).  ``threshold``: inlier distance in pixels; with
+    depth, a depth error ``σ_z`` moves a point by up to ``f σ_z / z`` pixels (1 % noise: ``0.01 f``), so
+    noisy depth needs a larger threshold."""
     import poselib
 
     uv = np.asarray(uv, np.float64)
@@ -128,60 +205,80 @@ def localize_against_lines(
     K = np.asarray(K, np.float64)
     if uv.ndim != 2 or uv.shape[1] != 2 or d.shape != (len(uv), 3) or m.shape != d.shape or K.shape != (3, 3):
         raise ValueError(f"need keypoints (M, 2) and M lines (M, 3), K (3, 3); got {uv.shape}, {d.shape}, {m.shape}, {K.shape}")
-    if len(uv) < 6:
-        raise ValueError(f"localisation needs at least 6 correspondences, got {len(uv)}")
+    size = 6 if depth is None else 3
+    if len(uv) < size:
+        raise ValueError(f"localisation needs at least {size} correspondences, got {len(uv)}")
     if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(d)) and np.all(np.isfinite(m)) and np.all(np.isfinite(K))):
         raise ValueError("keypoints, lines or intrinsics contain NaN or inf")
+    if depth is not None:
+        depth = np.asarray(depth, np.float64)
+        if depth.shape != (len(uv),) or not np.all(np.isfinite(depth)) or np.any(depth <= 0):
+            raise ValueError(f"depth must be ({len(uv)},), finite and > 0 (drop keypoints without depth), got "
+                             f"{depth.shape} with {int(np.sum(~(np.isfinite(depth) & (depth > 0))))} bad values")
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     lines64 = LineCloud(directions=d, moments=m)
     a = np.cross(d, m)
-    # one point shared by most lines (a sphere cloud)? the least-squares point nearest all lines, O(M)
-    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    common = np.linalg.lstsq(P.sum(0), np.einsum("nij,nj->i", P, a), rcond=None)[0]
-    through = np.linalg.norm(np.cross(common - a, d), axis=1) <= 1e-6 * (1.0 + float(np.abs(a).max()))
-    if np.mean(through) > 0.5:
-        raise ValueError(f"{np.mean(through):.0%} of the lines meet at one point (a sphere cloud): seen from one "
-                         "point, the map fixes the camera's rotation and the direction of its position, not its distance; "
-                         "localising against it needs the distance from elsewhere (e.g. a depth sensor)")
+    if depth is None:
+        # one point shared by most lines (a sphere cloud)? the least-squares point nearest all lines, O(M)
+        P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+        common = np.linalg.lstsq(P.sum(0), np.einsum("nij,nj->i", P, a), rcond=None)[0]
+        through = np.linalg.norm(np.cross(common - a, d), axis=1) <= 1e-6 * (1.0 + float(np.abs(a).max()))
+        if np.mean(through) > 0.5:
+            raise ValueError(f"{np.mean(through):.0%} of the lines meet at one point (a sphere cloud): seen from one "
+                             "point, the map fixes the camera's rotation and the direction of its position, not its "
+                             "distance; localising against it needs the keypoints' depth (depth=, from a depth sensor)")
+    # every point of a line within the map lies ahead of its ray (module docstring, 1.)
     far = 1e3 * (1.0 + float(np.abs(a).max()))
     origins = a - far * d
     rays = np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ np.linalg.inv(K).T
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    zero = np.zeros(3)
+    pad = _padded(len(uv)) - len(uv)
     rng = np.random.default_rng(seed)
-    best_T, best_in, it, needed = None, np.zeros(len(uv), bool), 0, max_iterations
     with jax.enable_x64(True):
-        # padded to a power of two with weight-0 rows (a line through the origin along z): one compiled
-        # refinement per size bucket, not per correspondence count
-        size = 1 << max(6, int(np.ceil(np.log2(len(uv)))))
-        pad = size - len(uv)
-        args = tuple(jnp.asarray(x) for x in (np.concatenate([uv, np.zeros((pad, 2))]),
-                                              np.concatenate([d, np.tile([0.0, 0.0, 1.0], (pad, 1))]),
-                                              np.concatenate([m, np.zeros((pad, 3))]), K))
+        if depth is None:
+            rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+            zeros = np.zeros((6, 3))
+            # weight-0 padding rows: a line through the origin along z
+            args = tuple(jnp.asarray(x) for x in (np.concatenate([uv, np.zeros((pad, 2))]),
+                                                  np.concatenate([d, np.tile([0.0, 0.0, 1.0], (pad, 1))]),
+                                                  np.concatenate([m, np.zeros((pad, 3))]), K))
 
-        def refine(T: np.ndarray, inl: np.ndarray) -> np.ndarray:
-            w = np.zeros(len(args[0]))
-            w[: len(inl)] = inl
-            Tr, _ = _refine(_to_se3(T[:3, :3], T[:3, 3]), *args, jnp.asarray(w), jnp.asarray(threshold))
-            return np.asarray(Tr.as_matrix())
+            def solve(s):
+                return [_matrix(p.R, p.t) for p in poselib.gen_relpose_6pt(origins[s], d[s], zeros, rays[s])]
 
-        while it < min(needed, max_iterations):
-            it += 1
-            s = rng.choice(len(uv), 6, replace=False)
-            for pose in poselib.gen_relpose_6pt(origins[s], d[s], np.repeat(zero[None], 6, 0), rays[s]):
-                T = np.eye(4)
-                T[:3, :3], T[:3, 3] = pose.R, pose.t
-                inl = line_reprojection_errors(T, uv, lines64, K) < threshold
-                if inl.sum() > best_in.sum() and inl.sum() >= 6:
-                    T = refine(T, inl)  # local optimisation of a new best
-                    inl2 = line_reprojection_errors(T, uv, lines64, K) < threshold
-                    best_T, best_in = (T, inl2) if inl2.sum() >= inl.sum() else (T, inl)
-                    w = best_in.mean()
-                    needed = int(np.ceil(np.log(1 - confidence) / np.log(max(1e-12, 1 - w**6)))) if w < 1 else 1
+            def errors(T):
+                return line_reprojection_errors(T, uv, lines64, K)
+
+            def refine(T, inl):
+                w = np.zeros(len(args[0]))
+                w[: len(inl)] = inl
+                Tr, _ = _refine(_to_se3(T[:3, :3], T[:3, 3]), *args, jnp.asarray(w), jnp.asarray(threshold))
+                return np.asarray(Tr.as_matrix())
+        else:
+            X = rays * depth[:, None]  # the keypoints in the query camera (z = depth)
+            f = 0.5 * (K[0, 0] + K[1, 1])
+            args = tuple(jnp.asarray(x) for x in (np.concatenate([X, np.tile([0.0, 0.0, 1.0], (pad, 1))]),
+                                                  np.concatenate([d, np.tile([0.0, 0.0, 1.0], (pad, 1))]),
+                                                  np.concatenate([a, np.zeros((pad, 3))]),
+                                                  np.concatenate([f / depth, np.zeros(pad)])))
+
+            def solve(s):  # gp3p: origins + λ d = R X + t, i.e. camera → world
+                return [np.linalg.inv(_matrix(p.R, p.t)) for p in poselib.gp3p(origins[s], d[s], X[s])]
+
+            def errors(T):
+                return point_line_errors(T, X, lines64, f)
+
+            def refine(T, inl):
+                w = np.zeros(len(args[0]))
+                w[: len(inl)] = inl
+                T = np.linalg.inv(T)
+                Tr, _ = _refine_with_depth(_to_se3(T[:3, :3], T[:3, 3]), *args, jnp.asarray(w), jnp.asarray(threshold))
+                return np.linalg.inv(np.asarray(Tr.as_matrix()))
+
+        best_T, best_in, it = _lo_ransac(len(uv), size, solve, errors, refine, threshold, max_iterations, confidence, rng)
         if best_T is None or best_in.sum() < min_inliers:
             return Localization(T_c_w=np.eye(4), inliers=np.zeros(len(uv), bool), iterations=it, success=False)
         best_T = refine(best_T, best_in)
-    inl = line_reprojection_errors(best_T, uv, lines64, K) < threshold
+    inl = errors(best_T) < threshold
     return Localization(T_c_w=best_T, inliers=inl, iterations=it, success=bool(inl.sum() >= min_inliers))
 
 
@@ -197,8 +294,7 @@ def localize_against_points(
     cam = {"model": "PINHOLE", "width": int(h), "height": int(h), "params": [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]}
     pose, info = poselib.estimate_absolute_pose(np.asarray(uv, np.float64), np.asarray(points, np.float64), cam,
                                                 {"max_reproj_error": threshold}, {})
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = pose.R, pose.t
+    T = _matrix(pose.R, pose.t)
     inl = np.asarray(info["inliers"], bool)
     return Localization(T_c_w=T, inliers=inl, iterations=int(info["iterations"]), success=bool(inl.sum() >= min_inliers))
 
@@ -218,24 +314,39 @@ def match_to_map(query: np.ndarray, map_descriptors: np.ndarray, *, ratio: float
 
 def localize_image(
     image: np.ndarray, lines: LineCloud, descriptors: np.ndarray, K: Float[np.ndarray, "3 3"], *,
-    n_features: int = 2000, ratio: float = 0.8, max_distance: int = 64, **ransac,
+    depth: np.ndarray | None = None, n_features: int = 2000, ratio: float = 0.8, max_distance: int = 64, **ransac,
 ) -> tuple[Localization, np.ndarray, np.ndarray]:
     """Localise one image against a line cloud whose line ``i`` carries ``descriptors[i]``.
 
+    ``depth``: the image's ``(H, W)`` z-depth map in metres (0 or non-finite where unknown), e.g. from a
+    time-of-flight sensor: each keypoint takes the depth of its pixel, keypoints without one are dropped,
+    and the pose is solved with depth (module docstring, 5.; what a sphere cloud needs).
     Returns ``(localization, uv, line_ids)``: the matched keypoints (pixels) and their lines
     (``localization.inliers`` indexes them).  ``ransac``: keyword arguments of :func:`localize_against_lines`.
-    Fewer than 6 matches give ``success=False`` (nothing to solve), not an error: the image may show
-    another place.
+    Too few matches (fewer than ``min_inliers``) give ``success=False`` (nothing to solve), not an error:
+    the image may show another place.
     """
     from privslam_jax.slam.frontend import OrbConfig, extract_orb, to_gray_u8
 
     desc = np.asarray(descriptors)
     if len(desc) != len(lines):
         raise ValueError(f"{len(desc)} descriptors for {len(lines)} lines")
+    image = np.asarray(image)
+    if depth is not None:
+        depth = np.asarray(depth, np.float64)
+        if depth.shape != image.shape[:2]:
+            raise ValueError(f"depth map {depth.shape} does not match the image {image.shape[:2]}")
     feats = extract_orb(to_gray_u8(image), OrbConfig(n_features=n_features))
     pairs = match_to_map(feats.desc, desc, ratio=ratio, max_distance=max_distance)
     uv, ids = feats.uv[pairs[:, 0]], pairs[:, 1]
-    if len(ids) < max(6, ransac.get("min_inliers", 12)):
+    z = None
+    if depth is not None:
+        h, w = depth.shape
+        px = np.clip(np.rint(uv).astype(np.int64), 0, [w - 1, h - 1])
+        z = depth[px[:, 1], px[:, 0]]
+        keep = np.isfinite(z) & (z > 0)
+        uv, ids, z = uv[keep], ids[keep], z[keep]
+    if len(ids) < max(6 if z is None else 3, ransac.get("min_inliers", 12)):
         return Localization(T_c_w=np.eye(4), inliers=np.zeros(len(ids), bool), iterations=0, success=False), uv, ids
     sub = LineCloud(directions=np.asarray(lines.directions, np.float64)[ids], moments=np.asarray(lines.moments, np.float64)[ids])
-    return localize_against_lines(uv, sub, K, **ransac), uv, ids
+    return localize_against_lines(uv, sub, K, depth=z, **ransac), uv, ids
