@@ -12,7 +12,7 @@ import argparse
 import math
 
 __all__ = ["positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "unit_interval",
-           "open_unit_interval", "multiple_of_32", "seed_list"]
+           "open_unit_interval", "multiple_of_32", "seed_list", "plane"]
 
 
 def _int(text: str, what: str) -> int:
@@ -100,3 +100,15 @@ def open_unit_interval(text: str) -> float:
     if not 0 <= value < 1:
         raise argparse.ArgumentTypeError(f"must be a number in [0, 1), got {text!r}")
     return value
+
+
+def plane(text: str) -> tuple[tuple[float, float, float], float]:
+    """A plane ``NX,NY,NZ,H`` (``n · x = H``, ``n`` finite and non-zero): ``((nx, ny, nz), h)``."""
+    parts = text.split(",")
+    what = "four numbers NX,NY,NZ,H with a non-zero normal"
+    if len(parts) != 4:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+    nx, ny, nz, h = (_float(v, what) for v in parts)
+    if nx == ny == nz == 0:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+    return (nx, ny, nz), h

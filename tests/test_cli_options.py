@@ -81,6 +81,9 @@ PRIVSLAM_CASES = [
     (["localize", MISSING, MISSING, "--min-inliers", "0"], "--min-inliers"),
     (["attack", MISSING, "--method", "bogus"], "--method"),
     (["attack", MISSING, "--refine", "-1"], "--refine"),
+    (["attack", MISSING, "--method", "plane", "--plane", "0,0,0,1"], "--plane"),
+    (["attack", MISSING, "--method", "plane", "--plane", "0,1,0"], "--plane"),
+    (["attack", MISSING, "--method", "plane", "--plane", "0,1,0,inf"], "--plane"),
     (["eval-points", MISSING, MISSING, "--method", "bogus"], "--method"),
     # filter
     (["filter", MISSING, "--method", "bogus"], "--method"),

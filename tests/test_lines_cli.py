@@ -83,6 +83,14 @@ def test_lift_attack_eval(tmp_path, capsys):
     assert np.max(np.linalg.norm(np.cross(rec, np.asarray(lines.directions)) - np.asarray(lines.moments), axis=1)) < 1e-3
     assert main(["attack", str(tmp_path / "l.ply"), "--out", str(tmp_path / "x.ply"), "--method", "ray"]) == 2
     assert "not a ray cloud" in capsys.readouterr().err
+    # the ground-plane attack on the sphere cloud: the half of the street on the plane z = 0 comes back
+    assert main(["attack", str(tmp_path / "sphere.ply"), "--out", str(tmp_path / "r_plane.ply"), "--method", "plane",
+                 "--plane", "0,0,2,0"]) == 0
+    rec = np.asarray(load_point_cloud(tmp_path / "r_plane.ply").xyz)
+    on_plane = pts[:, 2] == 0
+    assert on_plane.mean() > 0.4
+    np.testing.assert_allclose(rec[on_plane], pts[on_plane], atol=1e-3)
+    assert np.mean(np.linalg.norm(rec[~on_plane] - pts[~on_plane], axis=1) < 0.5) < 0.2
 
 
 def test_clean_errors(tmp_path, capsys):
