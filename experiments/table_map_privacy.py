@@ -60,7 +60,12 @@ from privslam_jax.data.synthetic import SynthConfig  # noqa: E402
 from privslam_jax.metrics.privacy import point_recovery_metrics  # noqa: E402
 from privslam_jax.privacy.lift import fixed_key, paired_lift, random_lift, ray_lift, sphere_lift  # noqa: E402
 from privslam_jax.privacy.optimised_lift import OptimisedLiftConfig, optimised_lift  # noqa: E402
-from privslam_jax.privacy.localize import localize_against_lines, localize_against_points, match_to_map  # noqa: E402
+from privslam_jax.privacy.localize import (  # noqa: E402
+    keypoint_depths,
+    localize_against_lines,
+    localize_against_points,
+    match_to_map,
+)
 from privslam_jax.slam.frontend import OrbConfig, extract_orb, to_gray_u8  # noqa: E402
 from privslam_jax.slam.known_poses import KnownPoseMapConfig, map_from_known_poses  # noqa: E402
 from privslam_jax.types import LineCloud  # noqa: E402
@@ -185,12 +190,8 @@ def correspondences(queries, desc: np.ndarray | None, cfg: dict):
         image, K, T, *depth = q
         f = extract_orb(to_gray_u8(image), OrbConfig(n_features=cfg["query_features"]))
         pairs = match_to_map(f.desc, desc)
-        uv, z = f.uv[pairs[:, 0]], None
-        if depth:
-            h, w = depth[0].shape
-            px = np.clip(np.rint(uv).astype(np.int64), 0, [w - 1, h - 1])
-            z = np.asarray(depth[0], np.float64)[px[:, 1], px[:, 0]]
-        out.append((uv, pairs[:, 1], K, T, z))
+        uv = f.uv[pairs[:, 0]]
+        out.append((uv, pairs[:, 1], K, T, keypoint_depths(depth[0], uv) if depth else None))
     return out
 
 

@@ -57,7 +57,7 @@ from privslam_jax.solvers import DenseSystem, LMParams, dense_damped_solve, hube
 from privslam_jax.types import LineCloud
 
 __all__ = ["Localization", "localize_against_lines", "localize_against_points", "localize_image", "match_to_map",
-           "line_reprojection_errors", "point_line_errors"]
+           "line_reprojection_errors", "point_line_errors", "keypoint_depths"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -312,6 +312,15 @@ def match_to_map(query: np.ndarray, map_descriptors: np.ndarray, *, ratio: float
     return pairs[np.argsort(pairs[:, 0], kind="stable")]
 
 
+def keypoint_depths(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``(M,)`` float64: the ``(H, W)`` depth map at each keypoint's nearest pixel (0 or non-finite where the
+    map has no depth; keypoints off the image take the nearest border pixel)."""
+    depth = np.asarray(depth, np.float64)
+    h, w = depth.shape
+    px = np.clip(np.rint(np.asarray(uv)).astype(np.int64), 0, [w - 1, h - 1])
+    return depth[px[:, 1], px[:, 0]]
+
+
 def localize_image(
     image: np.ndarray, lines: LineCloud, descriptors: np.ndarray, K: Float[np.ndarray, "3 3"], *,
     depth: np.ndarray | None = None, n_features: int = 2000, ratio: float = 0.8, max_distance: int = 64, **ransac,
@@ -341,9 +350,7 @@ def localize_image(
     uv, ids = feats.uv[pairs[:, 0]], pairs[:, 1]
     z = None
     if depth is not None:
-        h, w = depth.shape
-        px = np.clip(np.rint(uv).astype(np.int64), 0, [w - 1, h - 1])
-        z = depth[px[:, 1], px[:, 0]]
+        z = keypoint_depths(depth, uv)
         keep = np.isfinite(z) & (z > 0)
         uv, ids, z = uv[keep], ids[keep], z[keep]
     if len(ids) < max(6 if z is None else 3, ransac.get("min_inliers", 12)):
