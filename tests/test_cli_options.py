@@ -84,6 +84,7 @@ PRIVSLAM_CASES = [
     (["attack", MISSING, "--method", "plane", "--plane", "0,0,0,1"], "--plane"),
     (["attack", MISSING, "--method", "plane", "--plane", "0,1,0"], "--plane"),
     (["attack", MISSING, "--method", "plane", "--plane", "0,1,0,inf"], "--plane"),
+    (["attack", MISSING, "--method", "road", "--camera-height", "0"], "--camera-height"),
     (["eval-points", MISSING, MISSING, "--method", "bogus"], "--method"),
     # filter
     (["filter", MISSING, "--method", "bogus"], "--method"),

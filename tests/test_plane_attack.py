@@ -50,3 +50,75 @@ def test_a_line_parallel_to_the_plane_keeps_its_point_nearest_the_plane_and_bad_
     for normal, offset in (((0, 0, 0), 1.0), ((0, 1, 0), np.nan), ((0, 1), 1.0)):
         with pytest.raises(ValueError, match="plane"):
             ground_plane_attack(lines, normal, offset)
+
+
+def _hilly_road(n_cams=12, spacing=6.0, h=1.65, seed=0):
+    """A road of planar segments along z whose slope changes at every keyframe (y down, ±4°), the camera
+    of segment k pitched with it, ``h`` above its foot; points on the road within 40 % of the spacing of
+    their segment's foot (so that foot is their nearest), the other half on facades."""
+    rng = np.random.default_rng(seed)
+    slopes = np.deg2rad(rng.uniform(-4, 4, n_cams))
+    feet, T = [np.zeros(3)], []
+    for k, a in enumerate(slopes):
+        along = np.array([0.0, -np.sin(a), np.cos(a)])  # the road's forward direction (y down: climbing is −y)
+        down = np.array([0.0, np.cos(a), np.sin(a)])
+        R = np.stack([np.array([1.0, 0, 0]), down, along], axis=1)  # camera x, y (down), z (forward) in the map
+        Tk = np.eye(4)
+        Tk[:3, :3], Tk[:3, 3] = R, feet[k] - h * down
+        T.append(Tk)
+        feet.append(feet[k] + spacing * along)
+    T = np.stack(T)
+    k = rng.integers(0, n_cams, 2 * 400)
+    f, R = T[k, :3, 3] + h * T[k, :3, 1], T[k, :3, :3]
+    local = np.stack([rng.uniform(-3, 3, len(k)), np.zeros(len(k)), rng.uniform(-0.4, 0.4, len(k)) * spacing], 1)
+    X = f + np.einsum("nij,nj->ni", R, local)
+    road = np.arange(len(k)) < 400
+    X[~road] += np.einsum("nij,nj->ni", R[~road], np.c_[rng.choice([-6.0, 6.0], (~road).sum()),
+                                                      -rng.uniform(0.5, 8, (~road).sum()), np.zeros((~road).sum())])
+    return X, road, T
+
+
+def test_road_surface_attack_recovers_the_road_points_of_a_hilly_street_that_one_plane_misses():
+    """Reference: per line and keyframe the numpy solve of the first test, the nearest-to-its-foot
+    intersection kept.  Road points whose line is not grazing come back exactly (float32 lifts: mm); the
+    one plane under the first keyframe puts most of them metres off."""
+    from privslam_jax.attacks.plane import road_surface_attack
+
+    X, road, T = _hilly_road()
+    h = 1.65
+    for lift in (random_lift, ray_lift, sphere_lift):
+        lines = lift(X, fixed_key(5))
+        got = road_surface_attack(lines, T, h, chunk=97)
+        d = np.asarray(lines.directions, np.float64)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        p0 = np.cross(d, np.asarray(lines.moments, np.float64))
+        sample = np.random.default_rng(1).choice(len(X), 150, replace=False)
+        for i in sample:
+            cands = []
+            for Tk in T:
+                q, b1, b2 = Tk[:3, 3] + h * Tk[:3, 1], Tk[:3, 0], Tk[:3, 2]
+                x = p0[i] + np.linalg.solve(np.stack([d[i], -b1, -b2], 1), q - p0[i])[0] * d[i]
+                cands.append((np.linalg.norm(x - q), tuple(x)))
+            np.testing.assert_allclose(got[i], min(cands)[1], rtol=1e-9, atol=1e-6)
+        steep = np.abs(np.einsum("ni,ni->n", d, T[0, :3, 1][None, :])) > 0.3
+        err = np.linalg.norm(got - X, axis=1)
+        assert np.median(err[road & steep]) < 1e-3 and np.mean(err[road & steep] < 0.01) > 0.95, lift.__name__
+        one = np.linalg.norm(ground_plane_attack(lines, T[0, :3, 1], T[0, :3, 1] @ (T[0, :3, 3] + h * T[0, :3, 1])) - X, axis=1)
+        assert np.mean(one[road & steep] <= 0.5) < 0.6 * np.mean(err[road & steep] <= 0.5), lift.__name__
+
+
+def test_road_surface_attack_on_one_shared_plane_is_the_ground_plane_attack_and_bad_inputs_are_refused():
+    from privslam_jax.attacks.plane import road_surface_attack
+
+    X, _ = _street()
+    lines = random_lift(X, fixed_key(2))
+    T = np.tile(np.eye(4), (5, 1, 1))
+    T[:, :3, 3] = np.c_[np.zeros(5), np.zeros(5), np.linspace(0, 40, 5)]  # level cameras 1.65 above y = 1.65
+    T[:, 1, 3] = 0.0
+    np.testing.assert_allclose(road_surface_attack(lines, T, 1.65), ground_plane_attack(lines, (0, 1, 0), 1.65),
+                               atol=1e-9)
+    for bad_T, h, down, match in ((T[0], 1.65, (0, 1, 0), "T_w_c"), (T[:0], 1.65, (0, 1, 0), "T_w_c"),
+                                  (T, 0.0, (0, 1, 0), "height"), (T, np.nan, (0, 1, 0), "height"),
+                                  (T, 1.65, (0, 0, 0), "down"), (T, 1.65, (0, 1), "down")):
+        with pytest.raises(ValueError, match=match):
+            road_surface_attack(lines, bad_T, h, down)

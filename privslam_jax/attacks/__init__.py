@@ -20,4 +20,4 @@ from privslam_jax.attacks.line2point import (
 )
 from privslam_jax.attacks.centred import find_centres, ray_cloud_attack
 from privslam_jax.attacks.two_peaks import TwoPeakResult, assign_pairs, line_pairs, two_peak_attack, two_peaks
-from privslam_jax.attacks.plane import ground_plane_attack
+from privslam_jax.attacks.plane import ground_plane_attack, road_surface_attack

@@ -1,4 +1,5 @@
-"""A scene-prior attack on every line cloud: intersect each line with the ground plane.
+"""Scene-prior attacks on every line cloud: intersect each line with the ground plane, or with the road
+under the camera path.
 
 A street map's points are largely on the road (30 % of the synthetic street map's points lie within
 5 cm of the ground), and the ground plane is public knowledge in the map's own frame: a SLAM map is
@@ -18,6 +19,15 @@ This is not from a paper: it is the strongest attack we could build from the geo
 clouds (issue 19 item 2), and it applies to every lift.  It needs only the plane, not the descriptors
 or any learning; a map published in a frame whose ground plane is unknown (e.g. COLMAP's arbitrary
 frame) does not give it away, but one ground-plane fit on any part of the scene does.
+
+A real road is not one plane (KITTI seq1 climbs 1.2 m over 60 m, enough to put its road points metres
+off along their lines).  :func:`road_surface_attack` uses the keyframe poses that a SLAM map keeps
+beside its points (ORB-SLAM's Atlas saves them; the edge server that localises against the map holds
+them): the road under keyframe ``c`` is the plane through its foot ``F_c = C_c + h n_c``, with normal
+``n_c = R_w_c · down`` (the camera's down axis, ``down = (0, 1, 0)`` in KITTI's and the synthetic
+world's camera frames, and ``h`` the camera height), and each line takes its intersection with the
+plane of the keyframe whose foot is nearest to that intersection — the road surface the vehicle
+drove over, one tangent plane per keyframe.  With one shared plane this is :func:`ground_plane_attack`.
 """
 
 from __future__ import annotations
@@ -26,7 +36,7 @@ import numpy as np
 
 from privslam_jax.types import LineCloud
 
-__all__ = ["ground_plane_attack"]
+__all__ = ["ground_plane_attack", "road_surface_attack"]
 
 
 def ground_plane_attack(lines: LineCloud, normal: np.ndarray | tuple | list, offset: float) -> np.ndarray:
@@ -37,12 +47,47 @@ def ground_plane_attack(lines: LineCloud, normal: np.ndarray | tuple | list, off
         raise ValueError(f"the plane needs a finite non-zero normal (3,) and a finite offset, got {n} and {offset}")
     h = float(offset) / np.linalg.norm(n)
     n = n / np.linalg.norm(n)
+    d, p0 = _lines(lines)
+    return _meet(p0, d, n[None, :], h * n[None, :])[:, 0]
+
+
+def road_surface_attack(lines: LineCloud, T_w_c: np.ndarray, height: float,
+                        down: np.ndarray | tuple | list = (0.0, 1.0, 0.0), chunk: int = 4096) -> np.ndarray:
+    """``(N, 3)`` float64: where each line of ``lines`` meets the road under the keyframes ``T_w_c``
+    ``(M, 4, 4)`` (camera to map), ``height`` above it along the camera's ``down`` axis ``(3,)`` (module
+    docstring): of the ``M`` intersections, the one nearest its keyframe's foot.  ``chunk`` lines at a time
+    (memory ``chunk × M``)."""
+    T = np.asarray(T_w_c, np.float64)
+    dn = np.asarray(down, np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0 or not np.all(np.isfinite(T)):
+        raise ValueError(f"T_w_c must be finite keyframe poses (M, 4, 4) with M >= 1, got shape {T.shape}")
+    if dn.shape != (3,) or not np.all(np.isfinite(dn)) or np.linalg.norm(dn) == 0:
+        raise ValueError(f"down must be a finite non-zero (3,) vector in the camera frame, got {dn}")
+    if not (np.isfinite(height) and height > 0):
+        raise ValueError(f"height (the camera above the road, metres) must be finite and > 0, got {height}")
+    n = T[:, :3, :3] @ (dn / np.linalg.norm(dn))  # (M, 3) each keyframe's down axis in the map
+    feet = T[:, :3, 3] + float(height) * n
+    d, p0 = _lines(lines)
+    out = np.empty_like(p0)
+    for i in range(0, len(p0), chunk):
+        x = _meet(p0[i:i + chunk], d[i:i + chunk], n, feet)  # (c, M, 3)
+        best = np.argmin(np.linalg.norm(x - feet[None], axis=2), axis=1)
+        out[i:i + chunk] = x[np.arange(len(x)), best]
+    return out
+
+
+def _lines(lines: LineCloud) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions and each line's point nearest the origin, ``(N, 3)`` float64."""
     d = np.asarray(lines.directions, np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    p0 = np.cross(d, np.asarray(lines.moments, np.float64))  # each line's point nearest the origin
-    nd = d @ n
+    return d, np.cross(d, np.asarray(lines.moments, np.float64))
+
+
+def _meet(p0: np.ndarray, d: np.ndarray, n: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``(N, M, 3)``: line ``i`` (``p0 + t d``) met with the plane ``n_j · x = n_j · q_j`` (unit ``n``); a
+    line parallel to a plane (``|n·d| ≤ 1e-9``) gives its point nearest ``q_j``."""
+    nd = d @ n.T  # (N, M)
     parallel = np.abs(nd) <= 1e-9
-    t = np.where(parallel, 0.0, (h - p0 @ n) / np.where(parallel, 1.0, nd))
-    # a parallel line: its point nearest the foot of the origin on the plane, h n
-    t = np.where(parallel, np.einsum("ij,ij->i", h * n[None, :] - p0, d), t)
-    return p0 + t[:, None] * d
+    gap = np.einsum("mk,mk->m", n, q)[None, :] - p0 @ n.T
+    t = np.where(parallel, (q @ d.T).T - np.einsum("ik,ik->i", p0, d)[:, None], gap / np.where(parallel, 1.0, nd))
+    return p0[:, None, :] + t[..., None] * d[:, None, :]

@@ -7,7 +7,10 @@ them (docs/privacy.md); ``--method tpf``: two-peak finding for paired lifting (L
 2023), the two points of each pair handed out by a fair coin (seed 0; nothing in the cloud says which
 is which); ``--method plane``: each line meets the ground plane ``--plane`` (default ``0,1,0,1.65``:
 KITTI's road 1.65 m below a first camera with y down) where its point would be if it is on the road:
-the attack on sphere clouds, and on every other lift (``privslam_jax.attacks.plane``).  Point ``i`` of
+the attack on sphere clouds, and on every other lift (``privslam_jax.attacks.plane``); ``--method road``:
+each line meets the road under the keyframes of ``--trajectory`` (a KITTI pose file of the map's
+keyframes, camera to map, as ``privslam slam`` writes them), ``--camera-height`` above it along the
+camera's y axis: the road's slope no longer matters.  Point ``i`` of
 the output is recovered from line ``i``.  Runs in float32; ``--x64`` runs in float64.
 """
 
@@ -17,7 +20,7 @@ import argparse
 import time
 from pathlib import Path
 
-from privslam_jax.argtypes import nonnegative_int, plane
+from privslam_jax.argtypes import nonnegative_int, plane, positive_float
 
 __all__ = ["add_parser", "run"]
 
@@ -27,10 +30,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("lines", type=Path, help="input line cloud, PLY (edges or vertex pairs)")
     p.add_argument("--out", type=Path, required=True, help="output recovered point cloud, PLY")
-    p.add_argument("--method", choices=("line2point", "gradient", "ray", "tpf", "plane"), default="line2point",
+    p.add_argument("--method", choices=("line2point", "gradient", "ray", "tpf", "plane", "road"), default="line2point",
                    help="attack (default line2point)")
     p.add_argument("--plane", type=plane, default=((0.0, 1.0, 0.0), 1.65),
                    help="ground plane NX,NY,NZ,H (n·x = H) in the map's frame for --method plane (default 0,1,0,1.65)")
+    p.add_argument("--trajectory", type=Path, default=None,
+                   help="KITTI pose file of the map's keyframes (camera to map) for --method road")
+    p.add_argument("--camera-height", type=positive_float, default=1.65,
+                   help="camera above the road in metres, along its y axis, for --method road (default 1.65: KITTI)")
     p.add_argument("--refine", type=nonnegative_int, default=2, help="Line2Point refinement rounds (default 2; authors: 2 or 3)")
     p.add_argument("--x64", action="store_true", help="compute in float64")
     p.add_argument("--ascii", action="store_true", help="write ASCII PLY")
@@ -45,10 +52,13 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.attacks.gradient import GradientAttackConfig, gradient_attack
     from privslam_jax.attacks.two_peaks import assign_pairs, two_peak_attack
     from privslam_jax.attacks.line2point import Line2PointConfig, line2point
-    from privslam_jax.attacks.plane import ground_plane_attack
+    from privslam_jax.attacks.plane import ground_plane_attack, road_surface_attack
+    from privslam_jax.data.trajectory_io import read_kitti_matrices
     from privslam_jax.data.ply import load_line_cloud, save_point_cloud
     from privslam_jax.types import PointCloud
 
+    if args.method == "road" and args.trajectory is None:
+        raise ValueError("--method road needs --trajectory (the map's keyframe poses, KITTI format)")
     t0 = time.perf_counter()
     with jax.enable_x64(args.x64):
         lines = load_line_cloud(args.lines)
@@ -60,6 +70,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"{len(centres)} centres where the lines meet")
         elif args.method == "plane":
             pts = jax.numpy.asarray(ground_plane_attack(lines, *args.plane), "float64" if args.x64 else "float32")
+        elif args.method == "road":
+            keyframes = read_kitti_matrices(args.trajectory)
+            pts = jax.numpy.asarray(road_surface_attack(lines, keyframes, args.camera_height),
+                                    "float64" if args.x64 else "float32")
+            print(f"the road under {len(keyframes)} keyframes, {args.camera_height} m below each camera")
         elif args.method == "tpf":
             res = two_peak_attack(lines, progress=True)
             pts = jax.numpy.asarray(assign_pairs(res, "random"), "float64" if args.x64 else "float32")
