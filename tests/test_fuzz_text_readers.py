@@ -40,6 +40,7 @@ from privslam_jax.data.trajectory_io import (
     load_kitti,
     load_tum,
     read_kitti_matrices,
+    read_pose_matrices,
     read_tum_matrices,
     write_kitti_matrices,
     write_tum_matrices,
@@ -228,6 +229,17 @@ def _check_trajectory(traj, n):
 # ------------------------------------------------------------------------------------------------
 # Fuzz tests
 
+def _check_pose_file(path, expected):
+    """``read_pose_matrices`` (TUM or KITTI by the first line) on the same file: the format's reader's
+    matrices when that reader accepted it (``expected``), else finite rotations or an ``InputError``
+    naming the file (a damaged first line may make it the other format)."""
+    T = _load(path, lambda: read_pose_matrices(path))
+    if expected is not None:
+        np.testing.assert_array_equal(T, expected)
+    elif T is not None:
+        assert T.dtype == np.float64 and T.ndim == 3 and T.shape[1:] == (4, 4) and np.all(np.isfinite(T))
+
+
 @settings(max_examples=150, **FUZZ)
 @given(damaged(TUM))
 def test_fuzz_tum(data):
@@ -239,6 +251,7 @@ def test_fuzz_tum(data):
             assert t.dtype == T.dtype == np.float64 and T.shape == (t.shape[0], 4, 4) and t.shape[0] >= 1
             assert np.all(np.isfinite(t)) and np.all(np.isfinite(T)) and np.all(t[1:] > t[:-1])
             _check_rotations(T, 1e-9)
+        _check_pose_file(path, out[1] if out is not None else None)
         try:
             traj = load_tum(path)
         except InputError as err:
@@ -260,6 +273,7 @@ def test_fuzz_kitti_poses(data):
             assert T.dtype == np.float64 and T.ndim == 3 and T.shape[1:] == (4, 4) and T.shape[0] >= 1
             assert np.all(np.isfinite(T))
             _check_rotations(T, ROTATION_TOLERANCE)
+        _check_pose_file(path, T)
         try:
             traj = load_kitti(path)
         except InputError as err:
@@ -506,7 +520,7 @@ def test_calib_with_letters_is_an_input_error_naming_the_file(tmp_path):
         read_calib(path)
 
 
-@pytest.mark.parametrize("reader", ["tum", "kitti", "yolo", "label_2", "times"])
+@pytest.mark.parametrize("reader", ["tum", "kitti", "pose", "yolo", "label_2", "times"])
 def test_binary_text_files_are_input_errors(tmp_path, reader):
     """Bytes that are not UTF-8 escaped as UnicodeDecodeError (or a numpy parse error) naming no file."""
     data = b"\xff\xfe\x00garbage\x80\n"
@@ -517,8 +531,8 @@ def test_binary_text_files_are_input_errors(tmp_path, reader):
         return
     path = tmp_path / "f.txt"
     path.write_bytes(data)
-    read = {"tum": read_tum_matrices, "kitti": read_kitti_matrices, "yolo": read_yolo_labels,
-            "label_2": read_kitti_object_labels}[reader]
+    read = {"tum": read_tum_matrices, "kitti": read_kitti_matrices, "pose": read_pose_matrices,
+            "yolo": read_yolo_labels, "label_2": read_kitti_object_labels}[reader]
     with pytest.raises(InputError) as info:
         read(path)
     assert str(path) in str(info.value)

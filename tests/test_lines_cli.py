@@ -95,31 +95,34 @@ def test_lift_attack_eval(tmp_path, capsys):
 
 def test_road_attack_reads_the_keyframes_of_a_trajectory_file(tmp_path, capsys):
     """``--method road --trajectory``: the hilly street of tests/test_plane_attack.py lifted to a sphere cloud,
-    its keyframes written as a KITTI pose file; the command's points equal the library's
-    ``road_surface_attack`` (float32 output), and a missing or malformed trajectory is a clear error."""
+    its keyframes written as ``privslam slam`` writes them (TUM) and as a KITTI pose file; the command's
+    points equal the library's ``road_surface_attack`` (float32 output) for both, and a missing trajectory
+    or one of neither format is a clear error that writes nothing."""
     from privslam_jax.attacks.plane import road_surface_attack
     from privslam_jax.data.ply import save_line_cloud
+    from privslam_jax.data.trajectory_io import write_tum_matrices
     from privslam_jax.privacy.lift import fixed_key, sphere_lift
     from test_plane_attack import _hilly_road
 
     X, road, T = _hilly_road()
-    lines = sphere_lift(X, fixed_key(5))
-    save_line_cloud(tmp_path / "s.ply", lines)
-    np.savetxt(tmp_path / "kf.txt", T[:, :3, :].reshape(len(T), 12))
-    capsys.readouterr()
-    assert main(["attack", str(tmp_path / "s.ply"), "--out", str(tmp_path / "r.ply"), "--method", "road",
-                 "--trajectory", str(tmp_path / "kf.txt"), "--camera-height", "1.65"]) == 0
-    assert f"the road under {len(T)} keyframes" in capsys.readouterr().out
-    rec = np.asarray(load_point_cloud(tmp_path / "r.ply").xyz)
+    save_line_cloud(tmp_path / "s.ply", sphere_lift(X, fixed_key(5)))
     ref = road_surface_attack(load_line_cloud(tmp_path / "s.ply"), T, 1.65)
-    np.testing.assert_allclose(rec, ref.astype(np.float32), rtol=1e-6, atol=1e-4)
-    assert np.mean(np.linalg.norm(rec[road] - X[road], axis=1) <= 0.5) > 0.9
+    write_tum_matrices(tmp_path / "keyframes.txt", np.arange(len(T)) * 0.1, T)
+    np.savetxt(tmp_path / "kitti.txt", T[:, :3, :].reshape(len(T), 12))
+    for name in ("keyframes.txt", "kitti.txt"):
+        capsys.readouterr()
+        assert main(["attack", str(tmp_path / "s.ply"), "--out", str(tmp_path / "r.ply"), "--method", "road",
+                     "--trajectory", str(tmp_path / name), "--camera-height", "1.65"]) == 0
+        assert f"the road under {len(T)} keyframes" in capsys.readouterr().out
+        rec = np.asarray(load_point_cloud(tmp_path / "r.ply").xyz)
+        np.testing.assert_allclose(rec, ref.astype(np.float32), rtol=1e-6, atol=1e-4)
+        assert np.mean(np.linalg.norm(rec[road] - X[road], axis=1) <= 0.5) > 0.9
     assert main(["attack", str(tmp_path / "s.ply"), "--out", str(tmp_path / "x.ply"), "--method", "road"]) == 2
     assert "--trajectory" in capsys.readouterr().err
-    (tmp_path / "bad.txt").write_text("1 0 0\n")
+    (tmp_path / "bad.txt").write_text("# poses\n1 0 0\n")
     assert main(["attack", str(tmp_path / "s.ply"), "--out", str(tmp_path / "x.ply"), "--method", "road",
                  "--trajectory", str(tmp_path / "bad.txt")]) == 2
-    assert "bad.txt" in capsys.readouterr().err
+    assert "bad.txt: neither a TUM trajectory" in capsys.readouterr().err
     assert not (tmp_path / "x.ply").exists()
 
 

@@ -8,9 +8,9 @@ them (docs/privacy.md); ``--method tpf``: two-peak finding for paired lifting (L
 is which); ``--method plane``: each line meets the ground plane ``--plane`` (default ``0,1,0,1.65``:
 KITTI's road 1.65 m below a first camera with y down) where its point would be if it is on the road:
 the attack on sphere clouds, and on every other lift (``privslam_jax.attacks.plane``); ``--method road``:
-each line meets the road under the keyframes of ``--trajectory`` (a KITTI pose file of the map's
-keyframes, camera to map, as ``privslam slam`` writes them), ``--camera-height`` above it along the
-camera's y axis: the road's slope no longer matters.  Point ``i`` of
+each line meets the road under the keyframes of ``--trajectory`` (the map's keyframe poses, camera to
+map: ``keyframes.txt`` of ``privslam slam``, TUM, or a KITTI pose file), ``--camera-height`` above it
+along the camera's y axis: the road's slope no longer matters.  Point ``i`` of
 the output is recovered from line ``i``.  Runs in float32; ``--x64`` runs in float64.
 """
 
@@ -35,7 +35,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--plane", type=plane, default=((0.0, 1.0, 0.0), 1.65),
                    help="ground plane NX,NY,NZ,H (n·x = H) in the map's frame for --method plane (default 0,1,0,1.65)")
     p.add_argument("--trajectory", type=Path, default=None,
-                   help="KITTI pose file of the map's keyframes (camera to map) for --method road")
+                   help="the map's keyframe poses (camera to map), TUM (privslam slam's keyframes.txt) or KITTI, for --method road")
     p.add_argument("--camera-height", type=positive_float, default=1.65,
                    help="camera above the road in metres, along its y axis, for --method road (default 1.65: KITTI)")
     p.add_argument("--refine", type=nonnegative_int, default=2, help="Line2Point refinement rounds (default 2; authors: 2 or 3)")
@@ -53,12 +53,12 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.attacks.two_peaks import assign_pairs, two_peak_attack
     from privslam_jax.attacks.line2point import Line2PointConfig, line2point
     from privslam_jax.attacks.plane import ground_plane_attack, road_surface_attack
-    from privslam_jax.data.trajectory_io import read_kitti_matrices
+    from privslam_jax.data.trajectory_io import read_pose_matrices
     from privslam_jax.data.ply import load_line_cloud, save_point_cloud
     from privslam_jax.types import PointCloud
 
     if args.method == "road" and args.trajectory is None:
-        raise ValueError("--method road needs --trajectory (the map's keyframe poses, KITTI format)")
+        raise ValueError("--method road needs --trajectory (the map's keyframe poses: privslam slam's keyframes.txt)")
     t0 = time.perf_counter()
     with jax.enable_x64(args.x64):
         lines = load_line_cloud(args.lines)
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         elif args.method == "plane":
             pts = jax.numpy.asarray(ground_plane_attack(lines, *args.plane), "float64" if args.x64 else "float32")
         elif args.method == "road":
-            keyframes = read_kitti_matrices(args.trajectory)
+            keyframes = read_pose_matrices(args.trajectory)
             pts = jax.numpy.asarray(road_surface_attack(lines, keyframes, args.camera_height),
                                     "float64" if args.x64 else "float32")
             print(f"the road under {len(keyframes)} keyframes, {args.camera_height} m below each camera")

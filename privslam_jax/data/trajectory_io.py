@@ -38,6 +38,7 @@ __all__ = [
     "read_tum_matrices",
     "write_tum_matrices",
     "read_kitti_matrices",
+    "read_pose_matrices",
     "write_kitti_matrices",
     "load_tum",
     "save_tum",
@@ -199,6 +200,27 @@ def read_kitti_matrices(path: PathLike) -> Float[np.ndarray, "N 4 4"]:
         raise InputError(f"{path}:{linenos[i]}: the rotation block of pose {i} is not a rotation "
                          f"(max |R^T R - I| = {dev[i]:.3g}, det = {det[i]:.3g})")
     return T
+
+
+def read_pose_matrices(path: PathLike) -> Float[np.ndarray, "N 4 4"]:
+    """``T_w_c (N, 4, 4)`` float64 of a TUM trajectory (8 numbers per line, as ``privslam slam`` writes
+    ``trajectory.txt`` and ``keyframes.txt``) or a KITTI pose file (12), told apart by the first
+    non-comment line; the errors of :func:`read_tum_matrices` / :func:`read_kitti_matrices`, and
+    :class:`~privslam_jax.errors.InputError` for any other column count."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"pose file not found: {path}")
+    try:
+        with path.open(encoding="utf-8") as f:
+            first = next((line.split() for line in f if line.strip() and not line.lstrip().startswith("#")), [])
+    except UnicodeDecodeError as err:
+        raise InputError(f"{path}: not UTF-8 text ({err.reason})") from err
+    if len(first) == 8:
+        return read_tum_matrices(path)[1]
+    if len(first) == 12:
+        return read_kitti_matrices(path)
+    raise InputError(f"{path}: neither a TUM trajectory (8 numbers per line) nor KITTI poses (12): "
+                     f"{len(first)} fields on the first line")
 
 
 def write_kitti_matrices(path: PathLike, T_w_c: Float[np.ndarray, "N _ _"]) -> None:
