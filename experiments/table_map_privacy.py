@@ -6,19 +6,22 @@ For the unprotected map and every lift (random, paired, ray with 8 anchors, sphe
       back-projected with the true depth) with the keypoints' ORB descriptors; queries are the odd
       frames, localised by matching their ORB features to the map's descriptors
       (:func:`privslam_jax.privacy.localize.localize_image`);
-  (b) KITTI seq1, COLMAP: the 15,698 points of ``../shared/reference/ba/kitti_seq1_colmap_optimum.bal.txt.bz2``;
-      queries are every 5th camera with its own observations as correspondences (real keypoints, but the
-      map was made with them: an optimistic case for every representation alike);
+  (b) KITTI seq1, COLMAP: the 15,698 points of ``../shared/reference/ba/kitti_seq1_colmap_optimum.bal.txt.bz2``,
+      scaled to metres (COLMAP's scale is arbitrary: the Umeyama scale of its camera centres onto the ground
+      truth's; its rotation and origin stay COLMAP's); queries are every 5th camera with its own
+      observations as correspondences (real keypoints, but the map was made with them: an optimistic case
+      for every representation alike);
   (c) KITTI seq1, dense known-pose SfM: ORB features (10,000 per frame) of the even frames, matched between
       frames 2, 4 and 6 apart and triangulated with the ground-truth poses (reprojection ≤ 1.5 px in both,
       parallax ≥ 1°, depth 1–80 m), voxel-deduplicated at 5 cm; queries are the odd frames, never used for
       the map, matched by descriptor as in (a);
 report the strongest implemented attack (Table 3's attacks: Line2Point, the gradient attack, and the
 attack made for the lift: two-peak finding with a coin per pair for paired lines, the vote across centres
-for ray clouds; the TPF oracle is an upper bound and never counted; and, on the maps whose frame gives the
+for ray clouds; the TPF oracle is an upper bound and never counted; on the maps whose frame gives the
 road plane away — the synthetic world's ``y = +1.65`` and KITTI's first-camera frame, road 1.65 m below —
-the ground-plane attack of ``privslam_jax.attacks.plane`` on every lift, and its road-surface attack, one road
-plane under each of the map's keyframes, from the keyframe poses a SLAM map keeps) — its share within 0.1/0.5/1 m,
+the ground-plane attack of ``privslam_jax.attacks.plane`` on every lift; and on every map its road-surface
+attack, one road plane 1.65 m under each of the map's keyframes, from the keyframe poses a map keeps, the
+COLMAP map's cameras included) — its share within 0.1/0.5/1 m,
 median error and the source paper's NN metric — and localisation: share of queries localised within 0.25 m
 and 2°, median rotation/translation error over the localised ones, against PnP on the unprotected points
 with the same correspondences; map size; lift, attack and per-query localisation times.  Sphere clouds,
@@ -36,6 +39,7 @@ Expected:  no lift meets the goal (≤ 5 % within 0.5 m under every attack with 
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -74,7 +78,7 @@ from privslam_jax.types import LineCloud  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "experiments"))
 from table3_line2point import get_config as table3_config  # noqa: E402
-from table3_line2point import synthetic_map  # noqa: E402
+from table3_line2point import colmap_metric_scale, synthetic_map  # noqa: E402
 
 LIFTS = ("random", "paired", "ray", "sphere", "optimised")
 
@@ -107,12 +111,18 @@ def synthetic(cfg: dict):
 
 
 def kitti_colmap(cfg: dict, shared: Path):
-    """Map (b): points, viewing directions (from each point's first observing camera) and per-query
-    correspondences ``(uv, point ids, K, T_c_w)``."""
+    """Map (b): points, viewing directions (from each point's first observing camera), per-query
+    correspondences ``(uv, point ids, K, T_c_w)`` and the cameras' ``T_w_c`` (the map's keyframes), in
+    metres (:func:`colmap_metric_scale`: COLMAP's scale is arbitrary); its rotation and origin stay
+    COLMAP's (no road plane in the frame)."""
     from privslam_jax.data.bal import bal_to_opencv, read_bal
 
     prob = read_bal(shared / "reference" / "ba" / "kitti_seq1_colmap_optimum.bal.txt.bz2")
     T_all, intr, uv_all = bal_to_opencv(prob)
+    scale = colmap_metric_scale(prob, shared)
+    T_all = T_all.copy()
+    T_all[:, :3, 3] *= scale
+    prob = dataclasses.replace(prob, points=np.asarray(prob.points, np.float64) * scale)
     queries = []
     for c in range(0, prob.n_cameras, cfg["bal_every"]):
         sel = prob.obs_cam == c
@@ -121,7 +131,7 @@ def kitti_colmap(cfg: dict, shared: Path):
     centres = np.einsum("nji,nj->ni", T_all[:, :3, :3], -T_all[:, :3, 3])  # −Rᵀt per camera
     _, first = np.unique(prob.obs_pt, return_index=True)
     pts = np.asarray(prob.points, np.float64)
-    return pts, pts - centres[prob.obs_cam[first]], queries
+    return pts, pts - centres[prob.obs_cam[first]], queries, np.linalg.inv(T_all)
 
 
 def kitti_dense(cfg: dict, shared: Path):
@@ -304,9 +314,10 @@ def report(rows: list[dict], scenes: list[tuple[str, str]], cfg: dict, wall: flo
            "script's docstring). Lift keys: fixed seed 0, for reproducibility only.", ""]
     out += [f"- **{name}**: {desc}" for name, desc in scenes]
     out += ["", "Attack columns: the strongest implemented attack for the lift (Line2Point, gradient, TPF with a coin per "
-            "pair for paired lines, the vote across centres for ray clouds, and the ground-plane and road-surface attacks on "
-            "every lift of the synthetic and KITTI dense maps, whose frames give the road plane away and whose keyframe "
-            "poses give the road under the path away; the TPF oracle is an upper bound "
+            "pair for paired lines, the vote across centres for ray clouds, the ground-plane attack on every lift of the "
+            "synthetic and KITTI dense maps, whose frames give the road plane away, and the road-surface attack on every "
+            "lift of every map, whose keyframe poses give the road under the path away (the COLMAP map scaled to "
+            "metres); the TPF oracle is an upper bound "
             "and not counted), the share of points it puts within 0.1/0.5/1 m of the truth, its median error, the source "
             "paper's NN metric (mean distance from each point to the nearest recovered point). Localisation columns: "
             f"queries localised within {t_ok} m and {r_ok}°, median rotation and camera-centre errors over the localised queries, median matches "
@@ -350,9 +361,10 @@ def report(rows: list[dict], scenes: list[tuple[str, str]], cfg: dict, wall: flo
             "every estimate; the ground-plane attack (`privslam_jax/attacks/plane.py`) needs no distance, only the road "
             "plane, and gives their road points away as it does for every lift; the road-surface attack takes one road "
             "plane under each keyframe instead of one for the map (KITTI's road climbs), from the keyframe poses a SLAM "
-            "map keeps. The KITTI COLMAP map is in COLMAP's "
-            "arbitrary frame, so the ground-plane attack is not run on it there (a plane fit on any part of the road "
-            "would give it). From keypoints alone they cannot be localised against (the camera's distance from the "
+            "map keeps. The KITTI COLMAP map keeps COLMAP's rotation and origin, so the ground-plane attack is not "
+            "run on it (a plane fit on any part of the road would give it), but its cameras give the road under them "
+            "away once its scale is metric (the table scales it to metres to measure in metres; a stereo or "
+            "visual-inertial map is metric). From keypoints alone they cannot be localised against (the camera's distance from the "
             "centroid is not observable); the row *sphere, query depth* localises with each keypoint's depth, as the "
             "sphere-cloud paper does with a time-of-flight sensor (`localize_against_lines(..., depth=)`), on the "
             "synthetic map, whose queries have the render's depth (an ideal sensor); the KITTI frames have no depth. The optimised lift (`privslam_jax/privacy/optimised_lift.py`, defaults, each point's "
@@ -371,9 +383,9 @@ def main() -> None:
                      road=(keyframes, SynthConfig().camera_height))
     shared = shared_dir()
     if shared is not None and (shared / "reference" / "ba" / "kitti_seq1_colmap_optimum.bal.txt.bz2").is_file():
-        pts, viewing, queries = kitti_colmap(cfg, shared)
-        scenes.append(("KITTI seq1 COLMAP", f"{len(pts)} points; {len(queries)} query cameras (every {cfg['bal_every']}th) with their own observations"))
-        rows += evaluate("KITTI seq1 COLMAP", pts, None, viewing, queries, cfg)
+        pts, viewing, queries, keyframes = kitti_colmap(cfg, shared)
+        scenes.append(("KITTI seq1 COLMAP", f"{len(pts)} points, scaled to metres (COLMAP's scale is arbitrary); {len(queries)} query cameras (every {cfg['bal_every']}th) with their own observations"))
+        rows += evaluate("KITTI seq1 COLMAP", pts, None, viewing, queries, cfg, road=(keyframes, cfg["kitti_camera_height"]))
         pts, desc, viewing, queries, keyframes = kitti_dense(cfg, shared)
         scenes.append(("KITTI seq1 dense", f"known-pose SfM of the 26 even frames, {len(pts)} points with ORB descriptors; "
                        f"{len(queries)} query frames (the odd ones, not in the map)"))
