@@ -76,6 +76,8 @@ PRIVSLAM_CASES = [
     (["lift", MISSING, "--method", "bogus"], "--method"),
     (["lift", MISSING, "--seed", "1.5"], "--seed"),
     (["lift", MISSING, "--passes", "0"], "--passes"),
+    (["lift", MISSING, "--road-within", "0"], "--road-within"),
+    (["lift", MISSING, "--camera-height", "nan"], "--camera-height"),
     (["localize", MISSING, MISSING, "--every", "0"], "--every"),
     (["localize", MISSING, MISSING, "--threshold", "nan"], "--threshold"),
     (["localize", MISSING, MISSING, "--min-inliers", "0"], "--min-inliers"),

@@ -36,7 +36,7 @@ import numpy as np
 
 from privslam_jax.types import LineCloud
 
-__all__ = ["ground_plane_attack", "road_surface_attack"]
+__all__ = ["ground_plane_attack", "road_planes", "road_surface_attack"]
 
 
 def ground_plane_attack(lines: LineCloud, normal: np.ndarray | tuple | list, offset: float) -> np.ndarray:
@@ -57,6 +57,20 @@ def road_surface_attack(lines: LineCloud, T_w_c: np.ndarray, height: float,
     ``(M, 4, 4)`` (camera to map), ``height`` above it along the camera's ``down`` axis ``(3,)`` (module
     docstring): of the ``M`` intersections, the one nearest its keyframe's foot.  ``chunk`` lines at a time
     (memory ``chunk × M``)."""
+    n, feet = road_planes(T_w_c, height, down)
+    d, p0 = _lines(lines)
+    out = np.empty_like(p0)
+    for i in range(0, len(p0), chunk):
+        x = _meet(p0[i:i + chunk], d[i:i + chunk], n, feet)  # (c, M, 3)
+        best = np.argmin(np.linalg.norm(x - feet[None], axis=2), axis=1)
+        out[i:i + chunk] = x[np.arange(len(x)), best]
+    return out
+
+
+def road_planes(T_w_c: np.ndarray, height: float, down: np.ndarray | tuple | list = (0.0, 1.0, 0.0)
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The road under each keyframe (module docstring): ``(normals, feet)``, both ``(M, 3)`` float64, the
+    plane of keyframe ``c`` being ``n_c · x = n_c · F_c`` with unit ``n_c`` pointing down."""
     T = np.asarray(T_w_c, np.float64)
     dn = np.asarray(down, np.float64)
     if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0 or not np.all(np.isfinite(T)):
@@ -66,14 +80,8 @@ def road_surface_attack(lines: LineCloud, T_w_c: np.ndarray, height: float,
     if not (np.isfinite(height) and height > 0):
         raise ValueError(f"height (the camera above the road, metres) must be finite and > 0, got {height}")
     n = T[:, :3, :3] @ (dn / np.linalg.norm(dn))  # (M, 3) each keyframe's down axis in the map
-    feet = T[:, :3, 3] + float(height) * n
-    d, p0 = _lines(lines)
-    out = np.empty_like(p0)
-    for i in range(0, len(p0), chunk):
-        x = _meet(p0[i:i + chunk], d[i:i + chunk], n, feet)  # (c, M, 3)
-        best = np.argmin(np.linalg.norm(x - feet[None], axis=2), axis=1)
-        out[i:i + chunk] = x[np.arange(len(x)), best]
-    return out
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return n, T[:, :3, 3] + float(height) * n
 
 
 def _lines(lines: LineCloud) -> tuple[np.ndarray, np.ndarray]:

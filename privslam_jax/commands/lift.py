@@ -8,7 +8,10 @@ pair of points; ``--method ray``: ray clouds (Moon et al., CVPR 2024), each line
 and a random one of ``--anchors`` k-means centres of the map; ``--method sphere``: sphere clouds
 (Moon et al., BMVC 2024), every line through the map's centroid; ``--method optimised``: directions
 optimised against the gradient attack, kept away from the points' viewing directions when the PLY has
-normals (``nx ny nz``, as ``privslam slam``'s ``map.ply``) so they still serve localisation.  See
+normals (``nx ny nz``, as ``privslam slam``'s ``map.ply``) so they still serve localisation.
+``--road-parallel KEYFRAMES`` (random and optimised lifts) lays the lines of the points within
+``--road-within`` metres of the road under the map's keyframes parallel to it, so the road-surface
+attack (``privslam attack --method road``) has nothing to intersect.  See
 docs/privacy.md for what each one hides and what it costs.  POINTS may also be a BAL problem (``*.bal``, ``*.bal.txt``, optionally ``.bz2``):
 its 3D points are lifted.  The points' descriptors (``privslam slam``'s ``map.ply`` carries ORB
 descriptors) go with their lines, so ``privslam localize`` can match query images against them.  Without ``--seed`` the key comes from OS entropy (the secure default); a seed
@@ -69,6 +72,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--anchors", type=positive_int, default=8, help="anchors of --method ray (default 8)")
     p.add_argument("--passes", type=positive_float, default=100.0,
                    help="--method optimised: optimisation steps per point, on average (default 100)")
+    p.add_argument("--road-parallel", type=Path, default=None, metavar="KEYFRAMES",
+                   help="lay the lines of points near the road parallel to it (random and optimised lifts): the "
+                        "map's keyframe poses, TUM (privslam slam's keyframes.txt) or KITTI (privslam_jax.privacy.road)")
+    p.add_argument("--camera-height", type=positive_float, default=1.65,
+                   help="camera above the road in metres for --road-parallel (default 1.65: KITTI)")
+    p.add_argument("--road-within", type=positive_float, default=1.0,
+                   help="--road-parallel: the points within this many metres of the road (default 1.0)")
     p.add_argument("--seed", type=int, default=None, help="fixed seed (experiments only; default: OS entropy)")
     p.add_argument("--ascii", action="store_true", help="write ASCII PLY (default binary little-endian)")
     p.set_defaults(func=run)
@@ -87,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
     )
     from privslam_jax.privacy.optimised_lift import OptimisedLiftConfig, optimised_lift
 
+    if args.road_parallel is not None and args.method not in ("random", "optimised"):
+        raise ValueError(f"--road-parallel needs lines of free direction (--method random or optimised), not {args.method}")
     cloud = load_points(args.points)
     if args.seed is None:
         key = entropy_key()
@@ -98,6 +110,12 @@ def run(args: argparse.Namespace) -> int:
              "optimised": lambda p, k: optimised_lift(p, k, viewing_directions=cloud.normals,
                                                       config=OptimisedLiftConfig(passes=args.passes), progress=True)}
     lines = lifts[args.method](cloud.xyz, key)
+    if args.road_parallel is not None:
+        from privslam_jax.data.trajectory_io import read_pose_matrices
+        from privslam_jax.privacy.road import road_parallel
+
+        lines = road_parallel(lines, cloud.xyz, read_pose_matrices(args.road_parallel), args.camera_height,
+                              within=args.road_within)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_line_cloud(args.out, lines, descriptors=cloud.descriptors, binary=not args.ascii)
     first, _ = unique_points(np.asarray(cloud.xyz))

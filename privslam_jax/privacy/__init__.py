@@ -15,3 +15,4 @@ from privslam_jax.privacy.lift import (
     sphere_lift,
     sphere_lift_core,
 )
+from privslam_jax.privacy.road import road_parallel
