@@ -60,6 +60,7 @@ from privslam_jax.attacks.centred import ray_cloud_attack  # noqa: E402
 from privslam_jax.attacks.gradient import GradientAttackConfig, gradient_attack  # noqa: E402
 from privslam_jax.attacks.line2point import Line2PointConfig, line2point  # noqa: E402
 from privslam_jax.attacks.plane import ground_plane_attack, road_surface_attack  # noqa: E402
+from privslam_jax.privacy.road import road_parallel  # noqa: E402
 from privslam_jax.attacks.two_peaks import assign_pairs, two_peak_attack  # noqa: E402
 from privslam_jax.data.files import write_atomic  # noqa: E402
 from privslam_jax.data.synthetic import SynthConfig  # noqa: E402
@@ -80,13 +81,14 @@ sys.path.insert(0, str(ROOT / "experiments"))
 from table3_line2point import get_config as table3_config  # noqa: E402
 from table3_line2point import colmap_metric_scale, synthetic_map  # noqa: E402
 
-LIFTS = ("random", "paired", "ray", "sphere", "optimised")
+LIFTS = ("random", "random, road-parallel", "paired", "ray", "sphere", "optimised")
 
 
 def get_config() -> dict:
     return {
         "lift_seed": 0,
         "ray_anchors": 8,
+        "road_within": 1.0,  # road-parallel lines for the points within this many metres of the road
         "line2point": Line2PointConfig(num_refine_iterations=2),
         "gradient": GradientAttackConfig(),
         "optimised": OptimisedLiftConfig(),
@@ -150,8 +152,10 @@ def kitti_dense(cfg: dict, shared: Path):
 
 
 # ---------------------------------------------------------------------------------------- parts
-def lift(name: str, pts: np.ndarray, viewing: np.ndarray, cfg: dict) -> LineCloud:
+def lift(name: str, pts: np.ndarray, viewing: np.ndarray, cfg: dict, road: tuple | None = None) -> LineCloud:
     key = fixed_key(cfg["lift_seed"])
+    if name == "random, road-parallel":  # the random lift's lines, those of near-road points laid flat
+        return road_parallel(lift("random", pts, viewing, cfg), pts, *road, within=cfg["road_within"])
     fns = {"random": random_lift, "paired": paired_lift, "sphere": sphere_lift,
            "ray": lambda p, k: ray_lift(p, k, num_anchors=cfg["ray_anchors"]),
            "optimised": lambda p, k: optimised_lift(p, k, viewing_directions=viewing, config=cfg["optimised"],
@@ -258,8 +262,10 @@ def evaluate(scene: str, pts: np.ndarray, desc: np.ndarray | None, viewing: np.n
              "loc": localise("points", pts, None, corr, cfg)}]
     print(scene, rows[-1]["rep"], rows[-1]["loc"], flush=True)
     for name in LIFTS:
+        if name == "random, road-parallel" and road is None:
+            continue
         t0 = time.perf_counter()
-        lines = lift(name, pts, viewing, cfg)
+        lines = lift(name, pts, viewing, cfg, road)
         lift_s = time.perf_counter() - t0
         att = attacks(name, lines, pts, cfg, plane, road)
         best = max(att, key=lambda k: att[k][0]["within_0.5"])  # ties: the first listed
