@@ -612,3 +612,14 @@ def test_cli_maps_input_errors_to_exit_2_and_one_line(tmp_path, capsys, command)
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1, err
     assert str(bad) in err and err.startswith(f"privslam {command}: error: ")
+
+
+def test_pose_file_tells_the_format_apart_as_the_readers_parse_lines(tmp_path):
+    """``read_pose_matrices`` counts a line's fields as the readers do (a ``#`` comment after the numbers,
+    commas as separators): found by the TUM fuzz test above, where a trailing ``#`` made 9 fields."""
+    tum = tmp_path / "t.txt"
+    tum.write_text("# t x y z qx qy qz qw\n0.0 1 2 3 0 0 0 1 # first\n0.1,1,2,4,0,0,0,1\n")
+    np.testing.assert_array_equal(read_pose_matrices(tum), read_tum_matrices(tum)[1])
+    kitti = tmp_path / "k.txt"
+    kitti.write_text("1 0 0 0 0 1 0 0 0 0 1 5 #\n")
+    np.testing.assert_array_equal(read_pose_matrices(kitti), read_kitti_matrices(kitti))

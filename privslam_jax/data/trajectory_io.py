@@ -211,10 +211,11 @@ def read_pose_matrices(path: PathLike) -> Float[np.ndarray, "N 4 4"]:
     if not path.is_file():
         raise FileNotFoundError(f"pose file not found: {path}")
     try:
-        with path.open(encoding="utf-8") as f:
-            first = next((line.split() for line in f if line.strip() and not line.lstrip().startswith("#")), [])
+        with path.open(encoding="utf-8") as f:  # the fields as _read_rows reads them: '#' comments, commas
+            fields = (line.split("#", 1)[0].replace(",", " ").split() for line in f)
+            first = next((x for x in fields if x), [])
     except UnicodeDecodeError as err:
-        raise InputError(f"{path}: not UTF-8 text ({err.reason})") from err
+        raise input_error(path, "not a pose file (not UTF-8 text)", err) from err
     if len(first) == 8:
         return read_tum_matrices(path)[1]
     if len(first) == 12:
