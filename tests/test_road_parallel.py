@@ -61,7 +61,7 @@ def test_a_direction_along_the_normal_and_bad_inputs():
         road_parallel(lines, X[:1], T, 1.65)
 
 
-def test_privslam_lift_road_parallel(tmp_path, capsys):
+def test_privslam_lift_road_parallel(tmp_path, capsys, monkeypatch):
     """``privslam lift --road-parallel KEYFRAMES.txt`` (the keyframes as ``privslam slam`` writes them) equals
     ``road_parallel`` of the same seeded random lift (to the float32 PLY's rounding); a lift of fixed directions
     is refused."""
@@ -85,3 +85,15 @@ def test_privslam_lift_road_parallel(tmp_path, capsys):
     assert main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "x.ply"), "--method", "sphere",
                  "--road-parallel", str(tmp_path / "keyframes.txt")]) == 2
     assert "--road-parallel" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()
+    # the keyframes are read and checked before the lift (an optimised lift takes minutes): a bad file is
+    # refused without lifting
+    import privslam_jax.privacy.optimised_lift as optimised
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("lifted before the keyframes were checked")
+
+    monkeypatch.setattr(optimised, "optimised_lift", must_not_run)
+    (tmp_path / "bad.txt").write_text("0 1 2 3\n")
+    assert main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "x.ply"), "--method", "optimised",
+                 "--road-parallel", str(tmp_path / "bad.txt")]) == 2
+    assert "bad.txt" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()

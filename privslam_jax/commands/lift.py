@@ -100,6 +100,13 @@ def run(args: argparse.Namespace) -> int:
     if args.road_parallel is not None and args.method not in ("random", "optimised"):
         raise ValueError(f"--road-parallel needs lines of free direction (--method random or optimised), not {args.method}")
     cloud = load_points(args.points)
+    keyframes = None
+    if args.road_parallel is not None:  # read (and checked) before the lift, which may take minutes
+        from privslam_jax.attacks.plane import road_planes
+        from privslam_jax.data.trajectory_io import read_pose_matrices
+
+        keyframes = read_pose_matrices(args.road_parallel)
+        road_planes(keyframes, args.camera_height)
     if args.seed is None:
         key = entropy_key()
     else:
@@ -110,12 +117,10 @@ def run(args: argparse.Namespace) -> int:
              "optimised": lambda p, k: optimised_lift(p, k, viewing_directions=cloud.normals,
                                                       config=OptimisedLiftConfig(passes=args.passes), progress=True)}
     lines = lifts[args.method](cloud.xyz, key)
-    if args.road_parallel is not None:
-        from privslam_jax.data.trajectory_io import read_pose_matrices
+    if keyframes is not None:
         from privslam_jax.privacy.road import road_parallel
 
-        lines = road_parallel(lines, cloud.xyz, read_pose_matrices(args.road_parallel), args.camera_height,
-                              within=args.road_within)
+        lines = road_parallel(lines, cloud.xyz, keyframes, args.camera_height, within=args.road_within)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_line_cloud(args.out, lines, descriptors=cloud.descriptors, binary=not args.ascii)
     first, _ = unique_points(np.asarray(cloud.xyz))
