@@ -20,6 +20,7 @@ from privslam_jax.inpaint.filter import (
     Inpainter,
     InpainterConfig,
     edgeconnect_forward,
+    inpaint_inference,
     filter_frame,
 )
 from privslam_jax.inpaint.differentiable import (
@@ -80,6 +81,7 @@ __all__ = [
     "dilate",
     "edge_band",
     "edgeconnect_forward",
+    "inpaint_inference",
     "extract",
     "fill",
     "fill_hole_from_outside",

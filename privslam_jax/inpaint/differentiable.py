@@ -9,7 +9,8 @@ as JAX operations so that ``jax.grad`` / ``jax.jit`` / ``jax.vjp`` go through it
    where ``D_v`` (``S × H``) and ``D_u`` (``S × W``) hold the crop's resize matrices at its rows and
    columns (:func:`~privslam_jax.inpaint.crops.crop_box`) and zeros elsewhere; then clipped to
    ``[0, 1]`` and the crop's hole zeroed, as :func:`~privslam_jax.inpaint.crops.extract` does;
-3. the EdgeConnect forward (:func:`~privslam_jax.inpaint.filter.edgeconnect_forward`), all
+3. the EdgeConnect forward with the checkpoint's inference settings
+   (:func:`~privslam_jax.inpaint.filter.inpaint_inference`), all
    objects in one batch;
 4. resize back and paste (``U_v · out · U_uᵀ``, the transpose layout), under each object's own
    mask, averaged where masks overlap; the input is kept everywhere outside the union of the masks
@@ -61,7 +62,7 @@ from jaxtyping import Array, Bool, Float, PyTree
 from privslam_jax.data.images import as_unit_image
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.crops import CropBox, crop_box, extract
-from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, edgeconnect_forward
+from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, inpaint_inference
 from privslam_jax.inpaint.masks import GREY_WEIGHTS, dilate, edge_band, safe_canny, to_grey
 
 __all__ = ["FilterConstants", "FilterGeometry", "FilterModel", "apply_filter", "filter_constants", "filter_geometry",
@@ -96,6 +97,9 @@ class FilterConstants(NamedTuple):
     """Leak-free Canny edges of each crop at the model size (zero on the grown hole)."""
     fill: Float[np.ndarray | Array, "K S S 3"]
     """What the image generator sees inside each crop's hole (``InpainterConfig.prefill``)."""
+    frame_fill: Float[np.ndarray | Array, "H W 3"] | None = None
+    """The prefill of the whole frame at full resolution, which the output is blended with when
+    ``InpainterConfig.prefill_blend < 1`` (else None)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,7 +245,8 @@ def filter_constants(
         rgb_s, hole_s = extract(rgb, hidden, crop_box(m, config.crop_pad, config.min_crop), s)
         edges[k] = safe_canny(to_grey(rgb_s), hole_s, sigma=config.sigma)[0]
         fill[k] = baselines.fill(rgb_s, hole_s, config.prefill)
-    return FilterConstants(edges, fill)
+    frame_fill = None if config.prefill_blend == 1.0 else baselines.fill(rgb, hidden, config.prefill).astype(np.float32)
+    return FilterConstants(edges, fill, frame_fill)
 
 
 def filter_image(
@@ -277,7 +282,8 @@ def filter_image(
     if constants is None:
         rgb = jnp.repeat(image[..., None], 3, axis=-1) if image.ndim == 2 else image
         shapes = FilterConstants(jax.ShapeDtypeStruct((k, s, s), jnp.float32),
-                                 jax.ShapeDtypeStruct((k, s, s, 3), jnp.float32))
+                                 jax.ShapeDtypeStruct((k, s, s, 3), jnp.float32),
+                                 None if cfg.prefill_blend == 1.0 else jax.ShapeDtypeStruct((h, w, 3), jnp.float32))
         constants = jax.pure_callback(lambda x: filter_constants(np.asarray(x), masks, cfg), shapes,
                                       jax.lax.stop_gradient(rgb), vmap_method="sequential")
     if np.shape(constants.edges) != (k, s, s) or np.shape(constants.fill) != (k, s, s, 3):
@@ -315,11 +321,17 @@ def apply_filter(
     rgb_s = jnp.where(g.hole[..., None], zero, jnp.clip(x, 0.0, 1.0))
     grey_s = rgb_s @ jnp.asarray(GREY_WEIGHTS, dtype)
     eg, ig = nnx.merge(model.graphdef, params)
-    out_s, _, _ = edgeconnect_forward(eg, ig, rgb_s, grey_s[..., None], edges[..., None], cast(g.hole)[..., None],
-                                      cast(g.edge_hole)[..., None], model.use_edge_model, fill, model.config.residual)
+    out_s = inpaint_inference(eg, ig, rgb_s, grey_s[..., None], edges[..., None], cast(g.hole)[..., None],
+                              cast(g.edge_hole)[..., None], model.config, model.use_edge_model, fill)
     paste = jnp.einsum("khs,kstc,kwt->khwc", cast(g.up_v), out_s, cast(g.up_u))
     acc = jnp.sum(jnp.where(g.own[..., None], paste, zero), axis=0)
     count = jnp.sum(g.own, axis=0).astype(dtype)
     blend = acc / jnp.maximum(count, 1.0)[..., None]
+    a = model.config.prefill_blend
+    if a != 1.0:  # mixed with the full-resolution prefill of the frame (InpainterConfig.prefill_blend)
+        if constants.frame_fill is None or np.shape(constants.frame_fill) != (h, w, 3):
+            raise ValueError(f"this inpainter blends with the frame's prefill (prefill_blend {a}): constants need "
+                             f"frame_fill of shape {(h, w, 3)} (filter_constants makes it)")
+        blend = a * blend + (1.0 - a) * jax.lax.stop_gradient(cast(constants.frame_fill))
     out = jnp.where(g.hidden[..., None], blend, rgb)
     return out[..., 0] if image.ndim == 2 else out

@@ -10,7 +10,10 @@ EdgeConnect inference on one ``S × S`` crop (official ``EdgeConnect.inpaint`` f
 leak-free edges of :func:`~privslam_jax.inpaint.masks.safe_canny`):
 ``m`` = hole, ``b`` = hole grown by the edge band;
 ``e = G_edge([grey·(1−b) + b, edges·(1−b), b])``, ``ê = e·b + edges·(1−b)``;
-``y = G_img([rgb·(1−m) + m, ê])``, output ``y·m + rgb·(1−m)``.
+``y = G_img([rgb·(1−m) + m, ê])``, output ``y·m + rgb·(1−m)``.  A checkpoint may add inference
+settings (:class:`InpainterConfig`): the mean with the mirrored crop's mirrored fill
+(``flip_average``, :func:`inpaint_inference`) and, on the frame, a blend with the prefill method run at
+full resolution (``prefill_blend``).
 """
 
 from __future__ import annotations
@@ -31,8 +34,8 @@ from privslam_jax.inpaint.crops import crop_box, extract, paste_back
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGenerator
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 
-__all__ = ["EMBEDDED_INPAINTER", "EMBEDDED_REAL_INPAINTER", "EMBEDDED_TRADEOFF_INPAINTER", "FILTER_METHODS", "Inpainter", "InpainterConfig", "edgeconnect_forward",
-           "filter_frame"]
+__all__ = ["EMBEDDED_INPAINTER", "EMBEDDED_REAL_INPAINTER", "EMBEDDED_TRADEOFF_INPAINTER", "FILTER_METHODS", "Inpainter",
+           "InpainterConfig", "edgeconnect_forward", "filter_frame", "inpaint_inference"]
 
 INPAINTER_METHODS: tuple[str, ...] = ("edgeconnect", "tradeoff")
 """Filter methods run by an EdgeConnect :class:`Inpainter`: ``"tradeoff"`` is the same network with the
@@ -73,10 +76,25 @@ class InpainterConfig:
     ``y = clip(fill + tanh(logits), 0, 1)`` (official EdgeConnect: ``y = (tanh(logits) + 1) / 2``).
     The generator has no skip connections, so copying a good prefill through its 4× bottleneck
     is hard; as a residual, zero logits reproduce the prefill exactly."""
+    flip_average: bool = False
+    """Inference only (:func:`inpaint_inference`): the mean of the crop's fill and the mirror image of
+    the mirrored crop's fill (test-time augmentation). ``train/inpaint.py`` trains without it; the trade-off
+    trainer optimises the filter as it runs, with it."""
+    prefill_blend: float = 1.0
+    """Inference only: inside the hidden pixels of the frame, ``prefill_blend · y + (1 − prefill_blend) ·
+    p``, where ``y`` is the network's pasted fill and ``p`` the :attr:`prefill` method run on the whole
+    frame at full resolution (:func:`privslam_jax.inpaint.baselines.fill`, from the visible pixels only).
+    Below 1 it mixes the two fills: the network's is right on average but blurred by the model size,
+    the full-resolution prefill keeps fine detail, and their errors are partly independent. 1 keeps
+    the network's fill. As :attr:`flip_average` for training."""
 
     def __post_init__(self):
         if self.prefill not in PREFILLS:
             raise ValueError(f"prefill must be one of {PREFILLS}, got {self.prefill!r}")
+        if not 0.0 <= self.prefill_blend <= 1.0:
+            raise ValueError(f"prefill_blend must lie in [0, 1], got {self.prefill_blend}")
+        if self.prefill_blend != 1.0 and self.prefill == "white":
+            raise ValueError("prefill_blend < 1 needs a prefill method (telea, ns, gray, black), not white")
 
 
 PREFILLS: tuple[str, ...] = ("white", "gray", "black", "telea", "ns")
@@ -115,6 +133,32 @@ def edgeconnect_forward(
     return y * hole + rgb * (1 - hole), e_full, y
 
 
+def inpaint_inference(
+    edge_gen: EdgeGenerator,
+    inpaint_gen: InpaintGenerator,
+    rgb: Float[Array, "B S S 3"],
+    grey: Float[Array, "B S S 1"],
+    edges: Float[Array, "B S S 1"],
+    hole: Float[Array, "B S S 1"],
+    edge_hole: Float[Array, "B S S 1"],
+    config: InpainterConfig,
+    use_edge_model: bool = True,
+    hole_fill: Float[Array, "B S S 3"] | None = None,
+) -> Float[Array, "B S S 3"]:
+    """The composited crops as the filter makes them: :func:`edgeconnect_forward`, with
+    :attr:`InpainterConfig.flip_average` if ``config`` asks for it. Outside the hole it returns ``rgb``
+    exactly."""
+    def forward(flip: bool) -> Float[Array, "B S S 3"]:
+        m = (lambda x: x[:, :, ::-1]) if flip else (lambda x: x)  # mirror the width axis
+        fill = None if hole_fill is None else m(hole_fill)
+        out = edgeconnect_forward(edge_gen, inpaint_gen, m(rgb), m(grey), m(edges), m(hole), m(edge_hole),
+                                  use_edge_model, fill, config.residual)[0]
+        return m(out)
+
+    y = forward(False)
+    return 0.5 * (y + forward(True)) if config.flip_average else y
+
+
 def residual_output(y: Float[Array, "B S S 3"], fill: Float[Array, "B S S 3"] | float) -> Float[Array, "B S S 3"]:
     """``clip(fill + tanh(logits), 0, 1)`` from G2's ``y = (tanh(logits) + 1) / 2``."""
     return jnp.clip(fill + 2.0 * y - 1.0, 0.0, 1.0)
@@ -135,8 +179,7 @@ class Inpainter:
 
         def run(state, rgb, grey, edges, hole, edge_hole, hole_fill):
             eg, ig = nnx.merge(self.graphdef, state)
-            return edgeconnect_forward(eg, ig, rgb, grey, edges, hole, edge_hole, use_edge_model, hole_fill,
-                                       config.residual)[0]
+            return inpaint_inference(eg, ig, rgb, grey, edges, hole, edge_hole, config, use_edge_model, hole_fill)
 
         self._run = jax.jit(run)
 
@@ -306,4 +349,7 @@ def filter_frame(
         cnt[sl][own] += 1
     res = image.copy()
     res[hidden] = (acc[hidden] / cnt[hidden][:, None]).astype(np.float32)
+    if cfg.prefill_blend != 1.0:
+        base = baselines.fill(image, hidden, cfg.prefill)
+        res[hidden] = cfg.prefill_blend * res[hidden] + (1.0 - cfg.prefill_blend) * base[hidden]
     return like_input(res, original)

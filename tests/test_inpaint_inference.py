@@ -1,0 +1,119 @@
+"""Inference settings of an inpainter checkpoint: ``InpainterConfig.flip_average`` and ``prefill_blend``.
+
+References: mirror equivariance (a property the plain network lacks), the public
+``filter_frame`` of the same weights without the setting combined with
+:func:`privslam_jax.inpaint.baselines.fill` of the whole frame, and the differentiable
+``filter_image`` against ``filter_frame`` (as ``tests/test_filter_image.py`` does for the defaults).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from privslam_jax.inpaint import baselines
+from privslam_jax.inpaint.differentiable import FilterModel, filter_image
+from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame, inpaint_inference
+
+TINY = InpainterConfig(width=4, num_residual_blocks=1, prefill="telea", residual=True)
+
+
+def _frame(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth random 96×160 float frame in (0.05, 0.95) and two overlapping object masks."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:96, 0:160] / 40.0
+    img = np.stack([0.5 + 0.4 * np.sin(xx * rng.uniform(1, 3) + yy * rng.uniform(0, 2) + rng.uniform(0, 6))
+                    for _ in range(3)], -1).astype(np.float32)
+    masks = np.zeros((2, 96, 160), bool)
+    masks[0, 30:70, 40:75] = True
+    masks[1, 50:90, 65:120] = True
+    return img, masks
+
+
+def _with(inp: Inpainter, **settings) -> Inpainter:
+    return Inpainter(*inp.modules, dataclasses.replace(inp.config, **settings))
+
+
+def test_flip_average_is_mirror_equivariant_and_keeps_the_outside():
+    """With ``flip_average`` the crop's fill of the mirrored inputs is the mirrored fill (to float
+    rounding); the plain network is not mirror-symmetric (so the test can fail); outside the hole
+    the output is the input, bit for bit."""
+    inp = Inpainter.init(TINY, seed=2)
+    eg, ig = inp.modules
+    rng = np.random.default_rng(0)
+    s = TINY.size
+    rgb = jnp.asarray(rng.random((2, s, s, 3)), jnp.float32)
+    hole = jnp.zeros((2, s, s, 1)).at[:, 20:44, 10:40].set(1.0)
+    edge_hole = jnp.zeros((2, s, s, 1)).at[:, 12:52, 2:48].set(1.0)
+    rgb = rgb * (1 - hole)
+    grey = rgb.mean(-1, keepdims=True)
+    edges = jnp.asarray(rng.random((2, s, s, 1)) > 0.8, jnp.float32) * (1 - edge_hole)
+    fill = jnp.asarray(rng.random((2, s, s, 3)), jnp.float32)
+    args = (rgb, grey, edges, hole, edge_hole)
+    m = lambda x: x[:, :, ::-1]  # noqa: E731
+
+    def run(flip: bool, mirrored: bool):
+        cfg = dataclasses.replace(TINY, flip_average=flip)
+        xs = [m(a) for a in args] if mirrored else list(args)
+        return np.asarray(inpaint_inference(eg, ig, *xs, cfg, True, m(fill) if mirrored else fill))
+
+    plain, plain_m = run(False, False), run(False, True)
+    assert np.abs(m(plain_m) - plain).max() > 1e-3
+    both, both_m = run(True, False), run(True, True)
+    np.testing.assert_allclose(m(both_m), both, atol=1e-6)
+    outside = np.asarray(hole[..., 0]) == 0
+    assert np.array_equal(both[outside], np.asarray(rgb)[outside])
+    assert np.abs(both - plain).max() > 1e-3  # it changed the fill
+
+
+@pytest.mark.parametrize("blend", [0.0, 0.8])
+def test_prefill_blend_mixes_with_the_full_resolution_prefill(blend):
+    """``filter_frame`` with ``prefill_blend = a`` = ``a ·`` the same weights' fill without it ``+ (1 − a) ·``
+    OpenCV Telea of the whole frame, inside the hidden pixels; the input elsewhere; and no hidden
+    pixel changes the output."""
+    inp = Inpainter.init(TINY, seed=2)
+    img, masks = _frame()
+    hidden = masks.any(axis=0)
+    plain = filter_frame(img, masks, inpainter=inp)
+    got = filter_frame(img, masks, inpainter=_with(inp, prefill_blend=blend))
+    want = blend * plain + (1 - blend) * baselines.fill(img, hidden, "telea")
+    np.testing.assert_allclose(got[hidden], want[hidden], atol=2e-6)
+    assert np.array_equal(got[~hidden], img[~hidden])
+    other = np.where(hidden[..., None], np.random.default_rng(1).random(img.shape), img).astype(np.float32)
+    assert np.array_equal(filter_frame(other, masks, inpainter=_with(inp, prefill_blend=blend)), got)
+
+
+def test_filter_image_equals_filter_frame_with_both_settings():
+    """The differentiable filter runs the same inference: parity with ``filter_frame`` (overlapping
+    masks, flip and blend on), the outside bit-identical, no dependence on hidden pixels, and a
+    finite gradient in the parameters."""
+    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.7)
+    model, params = FilterModel.split(inp)
+    img, masks = _frame()
+    hidden = masks.any(axis=0)
+    run = jax.jit(lambda p, x: filter_image(p, x, masks, model))
+    out = np.asarray(run(params, img))
+    np.testing.assert_allclose(out, filter_frame(img, masks, inpainter=inp), atol=1e-5)
+    assert np.array_equal(out[~hidden], img[~hidden])
+    other = np.where(hidden[..., None], 0.0, img).astype(np.float32)
+    assert np.array_equal(np.asarray(run(params, other)), out)
+    g = jax.grad(lambda p: jnp.sum(filter_image(p, img, masks, model) ** 2))(params)
+    leaves = jax.tree.leaves(g)
+    assert all(np.all(np.isfinite(x)) for x in leaves) and any(np.any(np.asarray(x) != 0) for x in leaves)
+
+
+def test_settings_are_checked_and_saved(tmp_path):
+    with pytest.raises(ValueError, match="prefill_blend must lie"):
+        InpainterConfig(prefill="telea", prefill_blend=1.5)
+    with pytest.raises(ValueError, match="not white"):
+        InpainterConfig(prefill_blend=0.5)
+    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.8)
+    inp.save(tmp_path / "m.npz")
+    back = Inpainter.load(tmp_path / "m.npz")
+    assert back.config == inp.config
+    img, masks = _frame()
+    np.testing.assert_array_equal(filter_frame(img, masks, inpainter=back), filter_frame(img, masks, inpainter=inp))
