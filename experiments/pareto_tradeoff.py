@@ -134,6 +134,10 @@ def unit_key(world: int | str, frames: int, name: str, checkpoint: str | None, m
 
     The judge is not in it: a unit's re-detection carries its own :func:`judge_tag`, so that another
     judge only re-runs the (cheap) re-detection, not the SLAM runs."""
+    if checkpoint is None and name == "edgeconnect":  # an embedded checkpoint: its hash, so a new one is never served stale units
+        from privslam_jax.inpaint.filter import EMBEDDED_INPAINTER, EMBEDDED_REAL_INPAINTER
+
+        checkpoint = EMBEDDED_REAL_INPAINTER if world == KITTI and kitti_edgeconnect == "real" else EMBEDDED_INPAINTER
     model = _sha(checkpoint) if checkpoint else "-"
     if world == KITTI:
         model += f"/{kitti_edgeconnect}" if name == "edgeconnect" else ""

@@ -375,3 +375,25 @@ def test_experiment_end_to_end_and_resume(monkeypatch, tmp_path):
     assert exp.main(argv) == 0 and [f[0] for f in calls[0][0].filters] == ["black"]
     runs.write_text(kept[0][:40] + "\n" + kept[2] + "\n")
     assert exp.main(argv) == 2
+
+
+def test_resume_key_names_the_embedded_inpainter(monkeypatch, tmp_path):
+    """A resume file never serves an EdgeConnect unit made with another embedded checkpoint: the key of
+    ``edgeconnect`` without a ``--trained`` checkpoint changes with the embedded file (real-frame for
+    KITTI, synthetic-world elsewhere); a baseline's key does not."""
+    import privslam_jax.inpaint.filter as filt
+
+    mod = _load(monkeypatch)
+
+    def keys():
+        return {(w, n): mod.unit_key(w, 0 if w == mod.KITTI else 30, n, None, ("mono",), (0, 1))
+                for w in (mod.KITTI, 7) for n in ("edgeconnect", "telea")}
+
+    before = keys()
+    for name in ("EMBEDDED_REAL_INPAINTER", "EMBEDDED_INPAINTER"):
+        (tmp_path / name).write_bytes(name.encode())
+        monkeypatch.setattr(filt, name, tmp_path / name)
+    after = keys()
+    for w in (mod.KITTI, 7):
+        assert after[w, "edgeconnect"] != before[w, "edgeconnect"]
+        assert after[w, "telea"] == before[w, "telea"]
