@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from jaxtyping import ArrayLike
+from scipy.spatial import cKDTree
 
 from privslam_jax.attacks.plane import road_planes
 from privslam_jax.privacy.lift import _as_points, _lines
@@ -41,9 +42,7 @@ def road_parallel(lines: LineCloud, points: ArrayLike, T_w_c: np.ndarray, height
     if not (np.isfinite(within) and within > 0):
         raise ValueError(f"within must be finite and > 0 metres, got {within}")
     n, feet = road_planes(T_w_c, height, down)
-    nearest = np.empty(len(p), np.int64)
-    for i in range(0, len(p), 4096):  # the keyframe whose foot is nearest, 4096 points at a time
-        nearest[i:i + 4096] = np.argmin(np.linalg.norm(p[i:i + 4096, None] - feet[None], axis=2), axis=1)
+    nearest = cKDTree(feet).query(p)[1]  # the keyframe whose foot is nearest each point
     nk = n[nearest]
     near = np.abs(np.einsum("ik,ik->i", p - feet[nearest], nk)) < within
     unit = d / np.linalg.norm(d, axis=1, keepdims=True)
