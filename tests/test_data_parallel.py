@@ -1,8 +1,12 @@
 """Data-parallel training (issue 21 items 1-2): k steps on 2 devices = k steps on 1 device, same global batch.
 
-Each trainer runs as two processes (``--distributed``, loopback, gloo), then resumes in one process
-started with ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` (the flag must be set before JAX
-starts, and this test process has started it with one device), against one device.
+Each trainer runs as two processes (``--distributed``, loopback, gloo), then resumes in one process,
+against one device.  The detector resumes on two devices of one process, started with
+``XLA_FLAGS=--xla_force_host_platform_device_count=2`` (the flag must be set before JAX starts, and
+this test process has started it with one device); the inpainter and the trade-off filter resume on
+one device, so their uninterrupted one-device reference runs the programs the resumed run compiled
+(the run's persistent compilation cache, ``tests/conftest.py``), and the suite compiles the
+trainers' one-device steps once instead of twice.
 """
 
 from __future__ import annotations
@@ -101,12 +105,12 @@ def test_detector_on_two_processes_then_two_devices_ends_where_one_device_ends(t
     assert len(rel) > 50 and rel.max() <= 1e-2 and np.median(rel) <= 2e-5, (rel.max(), np.median(rel))
 
 
-def test_inpainter_on_two_processes_then_two_devices_ends_where_one_process_ends(tmp_path):
+def test_inpainter_on_two_processes_then_one_process_ends_where_one_process_ends(tmp_path):
     """``train/inpaint.py --distributed`` as two processes (4 crops of 32² from a folder, 2 per
-    process) runs the edge and inpaint stages (one step each) and checkpoints; the same command in
-    one process with two forced host devices resumes it for the joint stage (both generators, both
-    discriminators, spectral-norm vectors, Adam moments).  Against the same command in one process on
-    one device, the exported generators agree within float32 rounding: the median tensor within 1e-5
+    process) runs the edge and inpaint stages and the first joint step (both generators, both
+    discriminators, spectral-norm vectors, Adam moments) and checkpoints; the same command in one
+    process resumes it for the second joint step.  Against the same command run uninterrupted in one
+    process, the exported generators agree within float32 rounding: the median tensor within 1e-5
     of its largest magnitude, every value within 1e-3 of it plus 2·lr per step.  (The biases in front
     of instance norm have a true gradient of zero; what they get is rounding noise, which Adam turns
     into steps of up to lr whatever its size.)  Process 0 alone writes the log and the samples."""
@@ -123,22 +127,21 @@ def test_inpainter_on_two_processes_then_two_devices_ends_where_one_process_ends
     script = Path(__file__).resolve().parents[1] / "train" / "inpaint.py"
     lr = 1e-4
     common = [sys.executable, str(script), "--folder", str(tmp_path / "img"), "--width", "4", "--blocks", "1",
-              "--size", "32", "--batch", "4", "--stages", "edge:1,inpaint:1,joint:1", "--checkpoint-every", "1",
+              "--size", "32", "--batch", "4", "--stages", "edge:1,inpaint:1,joint:2", "--checkpoint-every", "1",
               "--sample-every", "1", "--lr", str(lr)]
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     port = _free_port()
-    procs = [subprocess.Popen(common + ["--workdir", str(tmp_path / "two"), "--max-steps", "2", "--distributed",
+    procs = [subprocess.Popen(common + ["--workdir", str(tmp_path / "two"), "--max-steps", "3", "--distributed",
                                        "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--process-id", str(i)],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for i in (0, 1)]
     outs = [p.communicate(timeout=900) for p in procs]
     for p, (_, err) in zip(procs, outs):
         assert p.returncode == 0, err[-3000:]
     log = (tmp_path / "two" / "log.csv").read_text().splitlines()
-    assert [r.split(",")[0] for r in log[1:]] == ["1", "2"]  # one row per step: process 1 wrote none
-    assert len(list((tmp_path / "two" / "samples").glob("*.png"))) == 2
-    resumed = subprocess.run(common + ["--workdir", str(tmp_path / "two"), "--devices", "2", "--export",
-                                       str(tmp_path / "two.npz")], capture_output=True, text=True, timeout=900,
-                             env=dict(env, XLA_FLAGS="--xla_force_host_platform_device_count=2"))
+    assert [r.split(",")[0] for r in log[1:]] == ["1", "2", "3"]  # one row per step: process 1 wrote none
+    assert len(list((tmp_path / "two" / "samples").glob("*.png"))) == 3
+    resumed = subprocess.run(common + ["--workdir", str(tmp_path / "two"), "--export", str(tmp_path / "two.npz")],
+                             capture_output=True, text=True, timeout=900, env=env)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert "inpainter written" in resumed.stdout
     one = subprocess.run(common + ["--workdir", str(tmp_path / "one"), "--export", str(tmp_path / "one.npz")],
@@ -151,14 +154,14 @@ def test_inpainter_on_two_processes_then_two_devices_ends_where_one_process_ends
     assert len(a) == len(b) > 10
     rel = np.asarray([np.abs(x - y).max() / (np.abs(x).max() + 1e-12) for x, y in zip(a, b)])
     excess = max(float((np.abs(x - y) - 1e-3 * np.abs(x).max()).max()) for x, y in zip(a, b))
-    assert np.median(rel) <= 1e-5 and excess <= 2 * lr * 3, (np.median(rel), excess)
+    assert np.median(rel) <= 1e-5 and excess <= 2 * lr * 4, (np.median(rel), excess)
 
 
 @pytest.mark.parametrize("accuracy_weight", [0.0, pytest.param(1.0, marks=pytest.mark.slow)])
-def test_tradeoff_on_two_processes_then_two_devices_ends_where_one_device_ends(tmp_path, accuracy_weight):
+def test_tradeoff_on_two_processes_then_one_process_ends_where_one_device_ends(tmp_path, accuracy_weight):
     """``train/tradeoff.py --distributed`` as two processes (a mesh of two devices, one per process,
     each making its own pair of every 2-pair batch) trains one step and checkpoints; the same command
-    in one process with two forced host devices (``--devices 2``) resumes it to step 2. Its filter
+    in one process on one device resumes it to step 2. Its filter
     equals two steps of one device on the same batches (``train_tradeoff`` in this process) as the
     inpainter tests require, with Adam's sign-like first steps in mind: the median tensor within 1e-4
     of its largest magnitude (measured 1.5e-5; pairs on the wrong process give about lr / 0.5 = 2e-3),
@@ -198,8 +201,7 @@ def test_tradeoff_on_two_processes_then_two_devices_ends_where_one_device_ends(t
         assert p.returncode == 0, err[-3000:]
     assert "wrote" in outs[0][0] and "wrote" not in outs[1][0]
     assert len((tmp_path / "w" / "log.csv").read_text().splitlines()) == 2  # a header and step 1: process 1 wrote none
-    two = subprocess.run(common + ["--steps", "2", "--devices", "2"], capture_output=True, text=True, timeout=900,
-                         env=dict(env, XLA_FLAGS="--xla_force_host_platform_device_count=2"))
+    two = subprocess.run(common + ["--steps", "2"], capture_output=True, text=True, timeout=900, env=env)
     assert two.returncode == 0, two.stderr[-3000:]
     detector, det_params = DetectorModel.split(load_detector(tmp_path / "det.npz")[0])
     config = TradeoffConfig(world_seeds=(7,), frames_per_world=4, width=192, height=64, detector_input_hw=(64, 192),
