@@ -134,8 +134,8 @@ def test_refine_jacfwd_equals_jacrev_and_batches(x64):
     def pose(pts, obs):
         return refine_pose_padded(jaxlie.SE3.identity(), pts, obs, valid, isg, ur, K, EXACT).T_c_w.wxyz_xyz
 
-    Jf = jax.jacfwd(pose, argnums=(0, 1))(X, uv)
-    Jr = jax.jacrev(pose, argnums=(0, 1))(X, uv)
+    Jf = jax.jit(jax.jacfwd(pose, argnums=(0, 1)))(X, uv)
+    Jr = jax.jit(jax.jacrev(pose, argnums=(0, 1)))(X, uv)
     for a, b in zip(Jf, Jr):
         assert a.shape == b.shape and np.all(np.isfinite(a))
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
@@ -144,8 +144,9 @@ def test_refine_jacfwd_equals_jacrev_and_batches(x64):
     X2, uv2, _, _ = _pose_problem(5, 30, True)
     loss = lambda pts, obs: jnp.sum(pose(pts, obs) ** 2)  # noqa: E731
     batched = jax.jit(jax.vmap(jax.grad(loss)))(jnp.stack([X, X2]), jnp.stack([uv, uv2]))
+    single = jax.jit(jax.grad(loss))
     for k, (p, o) in enumerate(((X, uv), (X2, uv2))):
-        np.testing.assert_allclose(batched[k], jax.grad(loss)(p, o), rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(batched[k], single(p, o), rtol=1e-8, atol=1e-12)
 
 
 def test_refine_gradient_is_nan_when_the_solve_did_not_converge(x64):
@@ -252,9 +253,9 @@ def test_ba_gradient_matches_central_differences_and_jacfwd_equals_jacrev(x64):
         r = _ba(p, uv, K, p["ur"])
         return r.T_c_w.wxyz_xyz, r.points
 
-    (J_pose_uv, _), (_, Jr) = jax.jacrev(solution, argnums=(0, 1))(p["uv"], p["K"])  # one reverse program
+    (J_pose_uv, _), (_, Jr) = jax.jit(jax.jacrev(solution, argnums=(0, 1)))(p["uv"], p["K"])  # one reverse program
     assert np.all(J_pose_uv[0] == 0)
-    Jf = jax.jacfwd(lambda K: solution(p["uv"], K)[1])(p["K"])
+    Jf = jax.jit(jax.jacfwd(lambda K: solution(p["uv"], K)[1]))(p["K"])
     np.testing.assert_allclose(Jf, Jr, rtol=1e-8, atol=1e-10)
 
 
