@@ -1,6 +1,6 @@
 """Per-stage SLAM timings at 1226×370 after compilation: monocular on KITTI seq1, or stereo.
 
-Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo] [--mapper-busy-frames N]
+Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo] [--mapper-busy-frames N] [--loop-closing]
 
 ``--stereo`` runs stereo SLAM on a synthetic stereo street at KITTI's size (1226×370, seed 0;
 ``seq1`` in ``../shared`` has no right images), so that the stereo matching stage is timed too.
@@ -39,6 +39,8 @@ def main() -> None:
     p.add_argument("--stereo", action="store_true", help="stereo SLAM on a synthetic 1226x370 stereo street")
     p.add_argument("--mapper-busy-frames", type=nonnegative_int, default=None,
                    help="SlamConfig.mapper_busy_frames (default: SlamConfig's)")
+    p.add_argument("--loop-closing", action="store_true",
+                   help="SlamConfig.loop_closing=True: place recognition over every keyframe (the whole system)")
     a = p.parse_args()
     from privslam_jax.slam.frontend import to_gray_u8
     from privslam_jax.slam.system import SlamConfig, run_slam
@@ -61,6 +63,8 @@ def main() -> None:
         images = [to_gray_u8(seq.image(i)) for i in range(n)]
     if a.mapper_busy_frames is not None:
         config = dataclasses.replace(config, mapper_busy_frames=a.mapper_busy_frames)
+    if a.loop_closing:
+        config = dataclasses.replace(config, loop_closing=True)
     t0 = time.perf_counter()
     run_slam(images, camera, config)
     first = time.perf_counter() - t0
@@ -78,7 +82,8 @@ def main() -> None:
     tracking = tm["total"] - np.nan_to_num(tm.get("mapping", np.zeros(n)))
     rows = [(k, v) for k, v in tm.items()] + [("tracking (total − mapping)", tracking),
                                               ("reference: cv2 ORB detectAndCompute 2000", np.array(ref))]
-    print(f"{name} ({config.mode}, mapper_busy_frames={config.mapper_busy_frames}), {n} frames, {res.tracked.sum()} tracked, {len(res.keyframe_indices)} keyframes")
+    print(f"{name} ({config.mode}, mapper_busy_frames={config.mapper_busy_frames}, loop_closing={config.loop_closing}), "
+          f"{n} frames, {res.tracked.sum()} tracked, {len(res.keyframe_indices)} keyframes, {len(res.loops)} loops closed")
     print(f"{'stage':45s} {'runs':>5s} {'median ms':>10s} {'mean ms':>10s}")
     for k, v in rows:
         v = np.asarray(v)
