@@ -6,7 +6,7 @@ Command::
     python benchmarks/suite_time.py --from F   # only summarise an earlier run's JSON lines
 
 The suite runs with ``PRIVSLAM_TEST_TIMES`` set (``tests/conftest.py`` then appends one JSON line per
-test with its wall time and JAX's compile-event seconds).  Compile seconds are those of the test
+test with its wall time, start time, xdist worker and JAX's compile-event seconds).  Compile seconds are those of the test
 processes; subprocesses (CLI runs, notebooks, multi-process training) are counted in wall time only.
 """
 
@@ -47,6 +47,15 @@ def main() -> None:
         print(f"{name:<40} {f['tests']:5d} {f['wall']:8.1f} {f['compile']:10.1f} {f['trace']:8.1f}")
     print(f"{'all (worker seconds)':<40} {total['tests']:5d} {total['wall']:8.1f} {total['compile']:10.1f} "
           f"{total['trace']:8.1f}")
+    workers: dict[str, list[float]] = collections.defaultdict(lambda: [0.0, 0.0])
+    t0 = min((r["start"] for r in rows if "start" in r), default=0.0)
+    for r in rows:
+        if "start" in r:  # busy seconds and when the worker's last test ended (load balance of xdist)
+            w = workers[r["worker"]]
+            w[0] += r["wall"]
+            w[1] = max(w[1], r["start"] + r["wall"] - t0)
+    for name, (busy, end) in sorted(workers.items()):
+        print(f"worker {name}: busy {busy:.0f} s, last test ended at {end:.0f} s")
     print(f"per-test rows: {path}")
 
 

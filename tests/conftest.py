@@ -86,7 +86,7 @@ def pytest_configure(config):
 
 
 class _TestTimes:
-    """Appends ``{"id", "wall", "<event>": seconds}`` per test to ``$PRIVSLAM_TEST_TIMES`` (one JSON line
+    """Appends ``{"id", "wall", "start", "worker", "<event>": seconds}`` per test to ``$PRIVSLAM_TEST_TIMES`` (one JSON line
     each; every xdist worker appends), the events being JAX's ``/jax/core/compile/*_duration``:
     tracing, lowering and XLA compilation in this process (not in subprocesses it starts)."""
 
@@ -105,8 +105,9 @@ class _TestTimes:
         import time
 
         self.seconds.clear()
-        start = time.perf_counter()
+        start, begun = time.perf_counter(), time.time()
         yield
-        row = {"id": item.nodeid, "wall": time.perf_counter() - start, **self.seconds}
+        row = {"id": item.nodeid, "wall": time.perf_counter() - start, "start": begun,
+               "worker": os.environ.get("PYTEST_XDIST_WORKER", "main"), **self.seconds}
         with open(self.path, "a") as f:
             f.write(json.dumps(row) + "\n")
