@@ -446,17 +446,18 @@ def cull_points(m: Map, kf: KeyFrame, cfg: MappingConfig) -> int:
 def solve_local_ba(
     T_c_w: np.ndarray, points: np.ndarray, obs_cam: np.ndarray, obs_pt: np.ndarray, obs_uv: np.ndarray,
     obs_sigma2: np.ndarray, fixed: np.ndarray, camera: Camera, iterations: int,
-    obs_u_right: np.ndarray | None = None,
+    obs_u_right: np.ndarray | None = None, bucket_growth: int = 2,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Local BA adapter: ``(K,4,4)`` poses and ``(P,3)`` points in, optimised ones out.
 
     Huber-robust (δ² = 5.991; stereo rows ``obs_u_right ≥ 0``: 7.815) reprojection error weighted
-    by ``1/σ²``.
+    by ``1/σ²``.  The problem is padded to size buckets growing by ``bucket_growth``
+    (:func:`_pad_ba_problem`).
     """
     n_real_cams, n_real_pts, n_real_obs = len(T_c_w), len(points), len(obs_cam)
     n_obs_in = len(obs_cam)
     T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed = _pad_ba_problem(
-        T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera)
+        T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera, bucket_growth)
     ur = None
     if obs_u_right is not None:
         ur = np.full(len(obs_cam), -1.0, np.float32)
@@ -504,16 +505,17 @@ def _matrices_from_se3(wxyz_xyz: np.ndarray) -> np.ndarray:
     return T
 
 
-def _pow2(n: int, minimum: int = 8) -> int:
-    """The smallest ``minimum·4^k ≥ n`` (coarse buckets: few compilations, ≤ 4× padding)."""
+def _pow2(n: int, minimum: int = 8, growth: int = 4) -> int:
+    """The smallest ``minimum·growth^k ≥ n`` (growth 4: coarse buckets, few compilations, ≤ 4× padding;
+    growth 2: twice as many buckets, ≤ 2× padding)."""
     b = minimum
     while b < n:
-        b *= 4
+        b *= growth
     return b
 
 
-def _pad_ba_problem(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera):
-    """Pad a BA problem with inert parts so that its padded sizes fall on powers of two.
+def _pad_ba_problem(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, camera, growth: int = 4):
+    """Pad a BA problem with inert parts so that its padded sizes fall on buckets ``minimum·growth^k``.
 
     The BA solver pads cameras, points, observations and Schur pair-chunks to geometric buckets
     (steps of 1.5×/2×); a sliding-window BA hits many combinations, each a new compilation. Here
@@ -522,6 +524,11 @@ def _pad_ba_problem(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, c
     are appended: a dummy point seen by two dummy cameras adds one pair chunk, single observations
     fill the observation count, unobserved dummies the points.  They change nothing in the
     solution (zero residual, no variable shared with the real problem).
+
+    ``growth`` trades compilations for work: a local BA runs at every keyframe, so it pads to buckets
+    growing by 2 (a window of 6,600 observations of 2,100 points is solved as 16,384 of each instead
+    of 32,768); the global BA runs once per loop closure or map merge, where a compilation costs
+    more than the padding, so it keeps buckets growing by 4.
     """
     from privslam_jax.slam.ba import BAConfig as _C
     from privslam_jax.slam.ba import analyze
@@ -538,16 +545,16 @@ def _pad_ba_problem(T_c_w, points, obs_cam, obs_pt, obs_uv, obs_sigma2, fixed, c
         n_chunks = None
     extra_pairs = 0
     if n_chunks is not None:
-        extra_pairs = _pow2(n_chunks + 2, 512) - 1 - n_chunks
+        extra_pairs = _pow2(n_chunks + 2, 512, growth) - 1 - n_chunks
         if extra_pairs > len(seg_a):
             extra_pairs = 0
     cam_a = np.concatenate([seg_a[:extra_pairs]])
     cam_b = np.concatenate([seg_b[:extra_pairs]])
     n_obs_after_pairs = len(obs_cam) + 2 * extra_pairs
-    target_obs = _pow2(n_obs_after_pairs + 1, 8192) - 1
+    target_obs = _pow2(n_obs_after_pairs + 1, 8192, growth) - 1
     singles = target_obs - n_obs_after_pairs
     n_dummy_pts = extra_pairs + singles
-    target_pts = _pow2(len(points) + n_dummy_pts, 8192)
+    target_pts = _pow2(len(points) + n_dummy_pts, 8192, growth)
     T = np.concatenate([T_c_w, np.tile(np.eye(4), (n_cams - m, 1, 1))])
     fx = np.concatenate([fixed, np.ones(n_cams - m, bool)])
     X = np.concatenate([points, np.tile([0.0, 0.0, 10.0], (target_pts - len(points), 1))])
@@ -593,7 +600,7 @@ def global_bundle_adjustment(m: Map, iterations: int = 10, map_id: int = 0) -> d
     ids = [int(i) for i in m.keyframes_of(map_id)]
     if len(ids) < 2:
         return {"ba_points": 0}
-    return adjust_keyframes(m, ids[1:], ids[:1], iterations)
+    return adjust_keyframes(m, ids[1:], ids[:1], iterations, bucket_growth=4)
 
 
 def _observations_of(m: Map, kf_ids: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -609,11 +616,11 @@ def _observations_of(m: Map, kf_ids: list[int]) -> tuple[np.ndarray, np.ndarray,
 
 
 def adjust_keyframes(m: Map, local: list[int], fixed_list: list[int], iterations: int,
-                     points_of: list[int] | None = None) -> dict:
+                     points_of: list[int] | None = None, bucket_growth: int = 2) -> dict:
     """Bundle-adjust the keyframes ``local`` and every good point that a keyframe of ``points_of``
     (default ``local``) observes, with the keyframes ``fixed_list`` held constant (their observations of
     those points count too); then drop the observations with ``χ²`` above the 95 % threshold.
-    Returns statistics."""
+    ``bucket_growth``: see :func:`_pad_ba_problem`.  Returns statistics."""
     cams = list(local) + list(fixed_list)
     _, rows, okf, opt, sel = _observations_of(m, local if points_of is None else points_of)
     cam_index = np.full(len(m.keyframes), -1, np.int64)
@@ -640,7 +647,7 @@ def adjust_keyframes(m: Map, local: list[int], fixed_list: list[int], iterations
     fixed = np.zeros(len(cams), bool)
     fixed[len(local):] = True
     new_poses, new_pts = solve_local_ba(poses, m.xyz[pids], cam_index[okf], pt_index[opt], uv, s2, fixed,
-                                        m.camera, iterations, obs_u_right=ur)
+                                        m.camera, iterations, obs_u_right=ur, bucket_growth=bucket_growth)
     for i, c in enumerate(local):
         m.keyframes[c].T_c_w = new_poses[i]
     good_pts = np.isfinite(new_pts).all(1)
