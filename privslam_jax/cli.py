@@ -13,7 +13,7 @@ import sys
 from privslam_jax._xla import configure_xla
 
 # Module names under privslam_jax.commands, in the order `privslam --help` lists them.
-_COMMANDS: tuple[str, ...] = ("run", "synth", "detect", "lift", "attack", "localize", "eval_points", "filter", "slam", "serve", "client")
+_COMMANDS: tuple[str, ...] = ("run", "synth", "import_frames", "detect", "lift", "attack", "localize", "eval_points", "filter", "slam", "serve", "client")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -63,6 +63,19 @@ PRIVSLAM_CASES = [
     (["synth", "--height", "-1"], "--height"),
     (["synth", "--name", "a/b"], "--name"),
     (["synth", "--seed", "-1", "--frames", "1"], "--seed"),
+    # import
+    (["import", MISSING], "--hfov"),
+    (["import", MISSING, "--hfov", "0"], "--hfov"),
+    (["import", MISSING, "--hfov", "180"], "--hfov"),
+    (["import", MISSING, "--camera", "700,700,320"], "--camera"),
+    (["import", MISSING, "--camera", "0,700,320,96"], "--camera"),
+    (["import", MISSING, "--camera", "nan,700,320,96"], "--camera"),
+    (["import", MISSING, "--camera", "700,700,320,96", "--hfov", "60"], "--hfov"),
+    (["import", MISSING, "--hfov", "60", "--every", "0"], "--every"),
+    (["import", MISSING, "--hfov", "60", "--max-frames", "-1"], "--max-frames"),
+    (["import", MISSING, "--hfov", "60", "--fps", "nan"], "--fps"),
+    (["import", MISSING, "--hfov", "60", "--name", "a/b"], "--name"),
+    (["import", MISSING, "--hfov", "60", "--grey", "--colour"], "--colour"),
     # detect
     (["detect", MISSING, "--embedded", "bogus"], "--embedded"),
     (["detect", MISSING, "--classes", "bogus"], "--classes"),
@@ -128,15 +141,18 @@ def _id(case) -> str:
 def test_privslam_refuses_bad_option_value(argv, option, tmp_path, capsys):
     out = tmp_path / "out"
     _check(privslam_main, argv if argv[0] in ("eval-points", "serve") else [*argv, "--out", str(out)], option, capsys)
-    if argv[0] in OWN_OUT or argv[0] == "synth":
+    if argv[0] in OWN_OUT or argv[0] in ("synth", "import"):
         assert not out.exists(), "the output folder was claimed before the options were checked"
 
 
 def test_every_subcommand_is_covered():
-    from privslam_jax.cli import _COMMANDS
+    import argparse
+
+    from privslam_jax.cli import build_parser
 
     covered = {(c.values[0] if hasattr(c, "values") else c[0])[0] for c in PRIVSLAM_CASES}
-    assert covered == {name.replace("_", "-") for name in _COMMANDS}
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert covered == set(sub.choices)
 
 
 def test_eval_points_names_the_missing_lines_file(tmp_path, capsys):

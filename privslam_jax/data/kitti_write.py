@@ -180,8 +180,9 @@ def summarize_sequence(seq: Any, frames: list[Any] | None = None, title: str = "
     lines = [
         f"{title}: {s['frames']} frames, {s['width']}x{s['height']} px"
         + (f", stereo baseline {s['stereo_baseline']:.3f} m" if s["stereo_baseline"] else ""),
-        f"  camera path length: {s['path_length_m']:.1f} m",
     ]
+    if np.isfinite(s["path_length_m"]):  # unknown without ground-truth poses (the next lines of the run say so)
+        lines.append(f"  camera path length: {s['path_length_m']:.1f} m")
     if s["objects_per_class"]:
         lines.append(f"  privacy objects in the world: {per_class(s['objects_per_class'])}")
     if s["visible_objects_per_class"]:
