@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -39,8 +40,9 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 configure_xla()
 
 
-def run_one(world: int, route: str, frames: int, mode: str, loop: bool, seed: int = 0) -> dict:
-    """One SLAM run on one rendered world; metrics and the loops it closed."""
+def run_one(world: int, route: str, frames: int, mode: str, loop: bool, far: float = math.inf, seed: int = 0) -> dict:
+    """One SLAM run on one rendered world; metrics and the loops it closed (``far``:
+    ``SlamConfig.stereo_max_depth_baselines``)."""
     import cv2
     import numpy as np
 
@@ -68,7 +70,8 @@ def run_one(world: int, route: str, frames: int, mode: str, loop: bool, seed: in
                 yield (grey(f.image), grey(f.image_right)) if mode == "stereo" else grey(f.image)
 
     t0 = time.perf_counter()
-    res = run_slam(items(), seq.camera, SlamConfig(mode=mode, seed=seed, loop_closing=loop), timestamps=seq.timestamps)
+    res = run_slam(items(), seq.camera, SlamConfig(mode=mode, seed=seed, loop_closing=loop, stereo_max_depth_baselines=far),
+                   timestamps=seq.timestamps)
     wall = time.perf_counter() - t0
     gt = seq.poses
     T = np.asarray(res.trajectory.as_matrices(), np.float64)
@@ -82,6 +85,7 @@ def run_one(world: int, route: str, frames: int, mode: str, loop: bool, seed: in
                       "inliers": lc.inliers, "matches": lc.matches, "scale": lc.scale})
     loop_s = float(np.nansum(res.timings["loop"])) if "loop" in res.timings else 0.0
     return {"world": world, "route": route, "frames": frames, "mode": mode, "loop_closing": loop, "seed": seed,
+            **({} if math.isinf(far) else {"stereo_max_depth_baselines": far}),
             "ate_m": float(err), "path_m": path, "ate_pct": 100.0 * float(err) / path,
             "tracked": int(res.tracked.sum()), "keyframes": len(res.keyframe_indices), "loops": loops,
             "wall_s": wall, "loop_s": loop_s}
@@ -89,6 +93,12 @@ def run_one(world: int, route: str, frames: int, mode: str, loop: bool, seed: in
 
 def _key(t: tuple) -> str:
     return "|".join(str(v) for v in t)
+
+
+def _task(r: dict) -> tuple:
+    """The task tuple of a finished run (records without the far-point setting ran with every depth)."""
+    return (r["world"], r["route"], r["frames"], r["mode"], r["loop_closing"],
+            r.get("stereo_max_depth_baselines", math.inf))
 
 
 def write_report(runs: list[dict], path: Path, command: str) -> str:
@@ -138,7 +148,7 @@ def write_report(runs: list[dict], path: Path, command: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from privslam_jax.argtypes import positive_int, seed_list
+    from privslam_jax.argtypes import positive_float, positive_int, seed_list
     from privslam_jax.data.synthetic import parse_seeds
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -150,23 +160,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=positive_int, default=1)
     ap.add_argument("--resume", type=Path, default=None, help="JSON-lines file of finished runs (appended, reused)")
     ap.add_argument("--out", type=Path, default=Path("results/loop_closing.md"))
+    ap.add_argument("--stereo-max-depth-baselines", type=positive_float, default=math.inf,
+                    help="SlamConfig.stereo_max_depth_baselines: stereo keypoints this many baselines away or "
+                    "farther are used as monocular ones (default inf: every depth, as ORB-SLAM)")
     args = ap.parse_args(argv)
+    far = args.stereo_max_depth_baselines
     modes = [m for m in args.modes.split(",") if m]
     if not modes or any(m not in ("stereo", "mono") for m in modes):
         ap.error(f"--modes must list stereo and/or mono, got {args.modes!r}")
-    tasks = [(w, "loop", args.loop_frames, m, lc) for m in modes for w in parse_seeds(args.loop_worlds) for lc in (True, False)]
-    tasks += [(w, "staircase", args.plain_frames, m, True) for m in modes for w in parse_seeds(args.plain_worlds)]
+    tasks = [(w, "loop", args.loop_frames, m, lc, far) for m in modes for w in parse_seeds(args.loop_worlds)
+             for lc in (True, False)]
+    tasks += [(w, "staircase", args.plain_frames, m, True, far) for m in modes for w in parse_seeds(args.plain_worlds)]
     from privslam_jax._shared import shared_dir
 
     if "mono" in modes and shared_dir() is not None:
-        tasks.append((0, "kitti-seq1", 51, "mono", True))
+        tasks.append((0, "kitti-seq1", 51, "mono", True, far))
     done: dict[str, dict] = {}
     if args.resume is not None and args.resume.is_file():
         lines = args.resume.read_text().splitlines()
         for i, line in enumerate(lines):
             try:
                 r = json.loads(line)
-                done[_key((r["world"], r["route"], r["frames"], r["mode"], r["loop_closing"]))] = r
+                done[_key(_task(r))] = r
             except (json.JSONDecodeError, TypeError, KeyError) as err:
                 if i + 1 < len(lines):  # only the last line may be cut short by a kill
                     ap.error(f"{args.resume}: line {i + 1} is damaged ({err}); delete the file to start again")
@@ -174,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(tasks)} runs, {len(tasks) - len(todo)} from {args.resume}")
 
     def finished(r: dict) -> None:
-        done[_key((r["world"], r["route"], r["frames"], r["mode"], r["loop_closing"]))] = r
+        done[_key(_task(r))] = r
         print(json.dumps(r), flush=True)
         if args.resume is not None:
             args.resume.parent.mkdir(parents=True, exist_ok=True)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -275,3 +277,25 @@ def test_run_slam_needs_a_mask_per_frame():
     frames = [np.zeros((80, 100), np.uint8)] * 2
     with pytest.raises(ValueError, match="fewer masks than frames"):
         run_slam(frames, cam, SlamConfig(mode="mono"), ignore=[])
+
+
+def test_far_stereo_keypoints_can_be_kept_monocular():
+    """``SlamConfig.stereo_max_depth_baselines``: the frame's depths are :func:`stereo_depths`'s
+    with every depth of that many baselines or more dropped (the shifted texture sits at
+    400·0.5/12.4 = 16.1 m = 32.3 baselines); ``inf`` (default) keeps them all."""
+    from privslam_jax.slam.system import Slam, SlamConfig
+    from privslam_jax.types import Camera
+
+    rng = np.random.default_rng(3)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (160, 400)).astype(np.float32), (0, 0), 1.5)
+    left = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    right = cv2.warpAffine(left, np.float32([[1, 0, -12.4], [0, 1, 0]]), (400, 160), flags=cv2.INTER_CUBIC,
+                           borderMode=cv2.BORDER_REFLECT)
+    cam = Camera(fx=400.0, fy=400.0, cx=199.5, cy=79.5, width=400, height=160, baseline=0.5)
+    ref = stereo_depths(left, right, extract_orb(left), extract_orb(right), cam.fx, 0.5)
+    assert np.isfinite(ref).sum() > 50 and np.nanmax(ref) < 40 * 0.5 <= np.nanmax(ref) * 1.3
+    for limit in (math.inf, 40.0, 32.0, 20.0):
+        frame, _ = Slam(cam, SlamConfig(mode="stereo", stereo_max_depth_baselines=limit)).features(0, left, right)
+        np.testing.assert_array_equal(frame.feats.depth, np.where(ref >= limit * 0.5, np.nan, ref))
+    with pytest.raises(ValueError, match="stereo_max_depth_baselines"):
+        SlamConfig(stereo_max_depth_baselines=0.0)
