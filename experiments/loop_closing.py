@@ -96,7 +96,8 @@ def _key(t: tuple) -> str:
 
 
 def _task(r: dict) -> tuple:
-    """The task tuple of a finished run (records without the far-point setting ran with every depth)."""
+    """The task tuple of a finished run (records without the far-point setting ran with every depth, or
+    are mono)."""
     return (r["world"], r["route"], r["frames"], r["mode"], r["loop_closing"],
             r.get("stereo_max_depth_baselines", math.inf))
 
@@ -148,7 +149,7 @@ def write_report(runs: list[dict], path: Path, command: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from privslam_jax.argtypes import positive_float, positive_int, seed_list
+    from privslam_jax.argtypes import positive_int, positive_or_inf, seed_list
     from privslam_jax.data.synthetic import parse_seeds
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -160,21 +161,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=positive_int, default=1)
     ap.add_argument("--resume", type=Path, default=None, help="JSON-lines file of finished runs (appended, reused)")
     ap.add_argument("--out", type=Path, default=Path("results/loop_closing.md"))
-    ap.add_argument("--stereo-max-depth-baselines", type=positive_float, default=math.inf,
+    ap.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=80.0,
                     help="SlamConfig.stereo_max_depth_baselines: stereo keypoints this many baselines away or "
-                    "farther are used as monocular ones (default inf: every depth, as ORB-SLAM)")
+                    "farther are used as monocular ones (default 80, SlamConfig's; inf: every depth, as ORB-SLAM)")
     args = ap.parse_args(argv)
     far = args.stereo_max_depth_baselines
     modes = [m for m in args.modes.split(",") if m]
     if not modes or any(m not in ("stereo", "mono") for m in modes):
         ap.error(f"--modes must list stereo and/or mono, got {args.modes!r}")
-    tasks = [(w, "loop", args.loop_frames, m, lc, far) for m in modes for w in parse_seeds(args.loop_worlds)
+    depth_limit = {"stereo": far, "mono": math.inf}  # mono frames have no stereo depth: not part of the run's key
+    tasks = [(w, "loop", args.loop_frames, m, lc, depth_limit[m]) for m in modes for w in parse_seeds(args.loop_worlds)
              for lc in (True, False)]
-    tasks += [(w, "staircase", args.plain_frames, m, True, far) for m in modes for w in parse_seeds(args.plain_worlds)]
+    tasks += [(w, "staircase", args.plain_frames, m, True, depth_limit[m]) for m in modes
+              for w in parse_seeds(args.plain_worlds)]
     from privslam_jax._shared import shared_dir
 
     if "mono" in modes and shared_dir() is not None:
-        tasks.append((0, "kitti-seq1", 51, "mono", True, far))
+        tasks.append((0, "kitti-seq1", 51, "mono", True, math.inf))
     done: dict[str, dict] = {}
     if args.resume is not None and args.resume.is_file():
         lines = args.resume.read_text().splitlines()

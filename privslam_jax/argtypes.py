@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "unit_interval",
+__all__ = ["positive_int", "nonnegative_int", "positive_float", "positive_or_inf", "nonnegative_float", "unit_interval",
            "open_unit_interval", "multiple_of_32", "seed_list", "plane"]
 
 
@@ -62,6 +62,16 @@ def positive_float(text: str) -> float:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
     return value
+
+
+def positive_or_inf(text: str) -> float:
+    """A number > 0, or ``inf`` for no limit (a depth limit)."""
+    if text.strip().lower() in ("inf", "infinity"):
+        return math.inf
+    try:
+        return positive_float(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0 or inf, got {text!r}") from None
 
 
 def nonnegative_float(text: str) -> float:

@@ -115,6 +115,9 @@ PRIVSLAM_CASES = [
     (["slam", MISSING, "--max-frames", "0"], "--max-frames"),
     (["slam", MISSING, "--max-frames", "-2"], "--max-frames"),
     (["slam", MISSING, "--new-map-after", "-1"], "--new-map-after"),
+    (["slam", MISSING, "--stereo-max-depth-baselines", "0"], "--stereo-max-depth-baselines"),
+    (["slam", MISSING, "--stereo-max-depth-baselines", "nan"], "--stereo-max-depth-baselines"),
+    (["slam", MISSING, "--stereo-max-depth-baselines", "-inf"], "--stereo-max-depth-baselines"),
     (["slam", MISSING, "--vocabulary", MISSING], "--vocabulary"),
     (["slam", MISSING, "--loop-closing", "--vocabulary", str(REPO / "README.md")], "--vocabulary"),
     # the edge split (serve takes no --out)
@@ -153,6 +156,16 @@ def test_every_subcommand_is_covered():
     covered = {(c.values[0] if hasattr(c, "values") else c[0])[0] for c in PRIVSLAM_CASES}
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     assert covered == set(sub.choices)
+
+
+def test_depth_limit_takes_a_positive_number_or_inf():
+    """``--stereo-max-depth-baselines``' type: ``inf`` (ORB-SLAM's every depth) passes, as any number > 0."""
+    import math
+
+    from privslam_jax.argtypes import positive_or_inf
+
+    assert positive_or_inf("inf") == positive_or_inf(" Infinity ") == math.inf
+    assert positive_or_inf("80") == 80.0 and positive_or_inf("1e-3") == 1e-3
 
 
 def test_eval_points_names_the_missing_lines_file(tmp_path, capsys):

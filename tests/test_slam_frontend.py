@@ -282,7 +282,7 @@ def test_run_slam_needs_a_mask_per_frame():
 def test_far_stereo_keypoints_can_be_kept_monocular():
     """``SlamConfig.stereo_max_depth_baselines``: the frame's depths are :func:`stereo_depths`'s
     with every depth of that many baselines or more dropped (the shifted texture sits at
-    400·0.5/12.4 = 16.1 m = 32.3 baselines); ``inf`` (default) keeps them all."""
+    400·0.5/12.4 = 16.1 m = 32.3 baselines); ``inf`` keeps them all, as the default (80) does here."""
     from privslam_jax.slam.system import Slam, SlamConfig
     from privslam_jax.types import Camera
 
@@ -294,6 +294,8 @@ def test_far_stereo_keypoints_can_be_kept_monocular():
     cam = Camera(fx=400.0, fy=400.0, cx=199.5, cy=79.5, width=400, height=160, baseline=0.5)
     ref = stereo_depths(left, right, extract_orb(left), extract_orb(right), cam.fx, 0.5)
     assert np.isfinite(ref).sum() > 50 and np.nanmax(ref) < 40 * 0.5 <= np.nanmax(ref) * 1.3
+    default, _ = Slam(cam, SlamConfig(mode="stereo")).features(0, left, right)
+    np.testing.assert_array_equal(default.feats.depth, ref)
     for limit in (math.inf, 40.0, 32.0, 20.0):
         frame, _ = Slam(cam, SlamConfig(mode="stereo", stereo_max_depth_baselines=limit)).features(0, left, right)
         np.testing.assert_array_equal(frame.feats.depth, np.where(ref >= limit * 0.5, np.nan, ref))

@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from privslam_jax.argtypes import nonnegative_int, positive_int
+from privslam_jax.argtypes import nonnegative_int, positive_int, positive_or_inf
 from privslam_jax.slam.outputs import (
     load_sequence_frames,
     masked_regions,
@@ -53,6 +53,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--new-map-after", type=nonnegative_int, default=50, metavar="N",
                    help="Atlas: start a new map after N consecutive lost frames and merge it into an earlier map "
                         "where place recognition finds they overlap (default 50; 0: stay in one map)")
+    p.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=None, metavar="B",
+                   help="stereo: keypoints B baselines away or farther are used as monocular ones (default 80, "
+                        "SlamConfig's; inf: keep every stereo depth, as ORB-SLAM)")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
@@ -77,7 +80,9 @@ def run(args: argparse.Namespace) -> int:
     ignore = masked_regions(seq, n) if args.ignore_masked else None
     cfg = SlamConfig(mode=args.mode, seed=args.seed, loop_closing=args.loop_closing or args.vocabulary is not None,
                      vocabulary=None if args.vocabulary is None else str(args.vocabulary),
-                     new_map_after=args.new_map_after)
+                     new_map_after=args.new_map_after,
+                     **({} if args.stereo_max_depth_baselines is None
+                        else {"stereo_max_depth_baselines": args.stereo_max_depth_baselines}))
     t0 = time.perf_counter()
     result = run_slam(frames, seq.camera, cfg, timestamps=seq.timestamps[:n], progress=True, total=n, ignore=ignore)
     wall = time.perf_counter() - t0
