@@ -161,9 +161,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=positive_int, default=1)
     ap.add_argument("--resume", type=Path, default=None, help="JSON-lines file of finished runs (appended, reused)")
     ap.add_argument("--out", type=Path, default=Path("results/loop_closing.md"))
-    ap.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=80.0,
+    ap.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=math.inf,
                     help="SlamConfig.stereo_max_depth_baselines: stereo keypoints this many baselines away or "
-                    "farther are used as monocular ones (default 80, SlamConfig's; inf: every depth, as ORB-SLAM)")
+                    "farther are used as monocular ones (default inf: every depth, as ORB-SLAM and SlamConfig)")
     args = ap.parse_args(argv)
     far = args.stereo_max_depth_baselines
     modes = [m for m in args.modes.split(",") if m]

@@ -282,7 +282,7 @@ def test_run_slam_needs_a_mask_per_frame():
 def test_far_stereo_keypoints_can_be_kept_monocular():
     """``SlamConfig.stereo_max_depth_baselines``: the frame's depths are :func:`stereo_depths`'s
     with every depth of that many baselines or more dropped (the shifted texture sits at
-    400·0.5/12.4 = 16.1 m = 32.3 baselines); ``inf`` keeps them all, as the default (80) does here."""
+    400·0.5/12.4 = 16.1 m = 32.3 baselines); ``inf`` (default) keeps them all."""
     from privslam_jax.slam.system import Slam, SlamConfig
     from privslam_jax.types import Camera
 

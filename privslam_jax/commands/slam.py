@@ -54,8 +54,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="Atlas: start a new map after N consecutive lost frames and merge it into an earlier map "
                         "where place recognition finds they overlap (default 50; 0: stay in one map)")
     p.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=None, metavar="B",
-                   help="stereo: keypoints B baselines away or farther are used as monocular ones (default 80, "
-                        "SlamConfig's; inf: keep every stereo depth, as ORB-SLAM)")
+                   help="stereo: keypoints B baselines away or farther are used as monocular ones (default inf: "
+                        "every stereo depth, as ORB-SLAM; docs/slam.md, 'Far stereo points')")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
