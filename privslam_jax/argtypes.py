@@ -12,7 +12,7 @@ import argparse
 import math
 
 __all__ = ["positive_int", "nonnegative_int", "positive_float", "positive_or_inf", "nonnegative_float", "unit_interval",
-           "open_unit_interval", "multiple_of_32", "seed_list", "plane"]
+           "open_unit_interval", "multiple_of_32", "seed_list", "plane", "intrinsics"]
 
 
 def _int(text: str, what: str) -> int:
@@ -122,3 +122,15 @@ def plane(text: str) -> tuple[tuple[float, float, float], float]:
     if nx == ny == nz == 0:
         raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
     return (nx, ny, nz), h
+
+
+def intrinsics(text: str) -> tuple[float, float, float, float]:
+    """Pinhole intrinsics ``FX,FY,CX,CY`` in pixels (finite; ``FX, FY > 0``)."""
+    parts = text.split(",")
+    what = "four numbers FX,FY,CX,CY (pixels; FX, FY > 0)"
+    if len(parts) != 4:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+    fx, fy, cx, cy = (_float(v, what) for v in parts)
+    if fx <= 0 or fy <= 0:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+    return fx, fy, cx, cy

@@ -10,21 +10,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from privslam_jax.argtypes import positive_float, positive_int
+from privslam_jax.argtypes import intrinsics, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
-
-
-def _camera(text: str) -> tuple[float, float, float, float]:
-    parts = text.split(",")
-    what = "four numbers FX,FY,CX,CY (pixels; FX, FY > 0)"
-    try:
-        values = tuple(float(v) for v in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
-    if len(values) != 4 or not all(v == v and abs(v) != float("inf") for v in values) or min(values[:2]) <= 0:
-        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
-    return values  # type: ignore[return-value]
 
 
 def _hfov(text: str) -> float:
@@ -47,7 +35,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output root (DIR/sequences/NAME is written)")
     p.add_argument("--name", type=_name, default="imported", help="sequence name (default 'imported')")
     cam = p.add_mutually_exclusive_group(required=True)
-    cam.add_argument("--camera", type=_camera, metavar="FX,FY,CX,CY", help="pinhole intrinsics in pixels (calibration)")
+    cam.add_argument("--camera", type=intrinsics, metavar="FX,FY,CX,CY", help="pinhole intrinsics in pixels (calibration)")
     cam.add_argument("--hfov", type=_hfov, metavar="DEG",
                      help="horizontal field of view in degrees, when no calibration is at hand (approximate intrinsics)")
     p.add_argument("--fps", type=positive_float, default=None, help="capture rate (default: the video's, else 10)")
