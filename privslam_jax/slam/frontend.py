@@ -321,12 +321,19 @@ def search_by_projection(
 
 
 def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarray, ur: np.ndarray,
-                half: int = 5, span: int = 5) -> tuple[np.ndarray, np.ndarray]:
+                half: int = 5, span: int = 5, zero_mean: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel right ``u`` by SAD over ``(2·half+1)²`` patches at offsets ``±span`` + parabola.
 
+    Each patch is compared minus its centre pixel (ORB-SLAM's ``IL - IL.at(w, w)``) or, with
+    ``zero_mean``, minus its mean.  Centre-pixel SAD is biased when the feature is not centred in
+    the patch, which is where keypoints of pyramid levels ≥ 1 sit (their level-0 position ``x_k·s``
+    is off the feature by about ``(s − 1)/2``): on a texture shifted by a known sub-pixel amount the
+    disparities of octaves 1-3 come out 0.04-0.07 px short (depth too large), octave 0's unbiased;
+    zero-mean SAD leaves every octave unbiased (``tests/test_slam_frontend.py``).
     Patches are read through a strided window view of the images (no index grid per pixel) and
-    compared in integers: each patch minus its centre pixel, absolute differences summed exactly
-    (at most 121·510), so the float32 SADs are those of a float computation, bit for bit."""
+    compared in integers: centre-pixel patches as they are, zero-mean patches scaled by the pixel
+    count ``P`` (``P·x − Σx``), absolute differences summed exactly (at most ``P²·510`` < 2²⁴), so
+    the float32 SADs are exact, bit for bit on every machine."""
     h, w = left.shape
     n = ul.size
     ui, vi, uri = np.rint(ul).astype(np.int64), np.rint(v).astype(np.int64), np.rint(ur).astype(np.int64)
@@ -339,11 +346,16 @@ def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarr
     size = 2 * half + 1
     left_windows = np.lib.stride_tricks.sliding_window_view(left, (size, size))  # [y, x] = patch at (y, x)
     right_windows = np.lib.stride_tricks.sliding_window_view(right, (size, size))
-    lp = left_windows[vi[idx] - half, ui[idx] - half].astype(np.int16)  # (n, P, P)
-    lp = lp - lp[:, half:half + 1, half:half + 1]
     shifts = np.arange(-span, span + 1)
-    rp = right_windows[vi[idx, None] - half, uri[idx, None] + shifts[None, :] - half].astype(np.int16)  # (n, S, P, P)
-    rp = rp - rp[:, :, half:half + 1, half:half + 1]
+    dtype = np.int32 if zero_mean else np.int16  # int16 holds centre-pixel differences (±255)
+    lp = left_windows[vi[idx] - half, ui[idx] - half].astype(dtype)  # (n, P, P)
+    rp = right_windows[vi[idx, None] - half, uri[idx, None] + shifts[None, :] - half].astype(dtype)  # (n, S, P, P)
+    if zero_mean:
+        lp = size * size * lp - lp.sum(axis=(1, 2), keepdims=True)
+        rp = size * size * rp - rp.sum(axis=(2, 3), keepdims=True)
+    else:
+        lp = lp - lp[:, half:half + 1, half:half + 1]
+        rp = rp - rp[:, :, half:half + 1, half:half + 1]
     sad = np.abs(rp - lp[:, None]).sum(axis=(2, 3), dtype=np.int32).astype(np.float32)  # (n, S)
     b = np.argmin(sad, axis=1)
     inner = (b > 0) & (b < 2 * span)
@@ -360,7 +372,7 @@ def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarr
 
 def stereo_depths(
     left: np.ndarray, right: np.ndarray, fl: Features, fr: Features, fx: float, baseline: float,
-    scale_factor: float = 1.2,
+    scale_factor: float = 1.2, zero_mean: bool = False,
 ) -> np.ndarray:
     """Depth of each left keypoint from a rectified right image (``nan`` where unmatched);
     ``left``/``right``: uint8 grey images.
@@ -368,7 +380,8 @@ def stereo_depths(
     Candidates: right keypoints within ±2·scale^octave rows, octave ±1, ``u_r ∈ (u_l − fx, u_l]``;
     the best Hamming distance must be ≤ (TH_HIGH+TH_LOW)/2; then an 11×11 SAD search over ±5 px
     with a parabola fit gives sub-pixel ``u_r`` (matches whose SAD minimum lies on the search
-    border are dropped).  Departure: SAD on level 0, not on the keypoint's pyramid level.
+    border are dropped; ``zero_mean``: patches minus their mean instead of their centre pixel,
+    :func:`_sad_refine`).  Departure: SAD on level 0, not on the keypoint's pyramid level.
     """
     if left.dtype != np.uint8 or right.dtype != np.uint8 or left.shape != right.shape or left.ndim != 2:
         raise ValueError(f"stereo_depths takes two uint8 grey images of one size, got {left.dtype} {left.shape} "
@@ -398,7 +411,7 @@ def stereo_depths(
     first = np.r_[True, qi[1:] != qi[:-1]]
     sel = first & (d <= (TH_HIGH + TH_LOW) // 2)
     q, k = qi[sel], ki[sel]
-    ur, good = _sad_refine(left, right, fl.uv[q, 0], fl.uv[q, 1], fr.uv[k, 0])
+    ur, good = _sad_refine(left, right, fl.uv[q, 0], fl.uv[q, 1], fr.uv[k, 0], zero_mean=zero_mean)
     disp = fl.uv[q, 0] - ur
     good &= disp > 0.5
     if good.sum() == 0:

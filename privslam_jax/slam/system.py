@@ -119,6 +119,10 @@ class SlamConfig:
     share of the path: 0.056 → 0.038 %, held-out worlds 0.079 → 0.035 %) but raises it on
     privacy-filtered frames (Table 4's EdgeConnect and Telea rows, median SE(3) ATE 0.211 → 0.426 m and
     0.267 → 0.427 m), so it is not the default; docs/slam.md, "Far stereo points"."""
+    stereo_zero_mean_sad: bool = False
+    """Stereo: refine each match by SAD of zero-mean patches instead of ORB-SLAM's patches minus their
+    centre pixel, which gives the keypoints of pyramid levels ≥ 1 disparities a few hundredths of a
+    pixel short (``frontend._sad_refine``); ``False`` (default) is ORB-SLAM's."""
     rgbd_close_depth: float = 20.0
     """RGB-D: close-point depth threshold, metres."""
     min_init_points: int = 300
@@ -308,7 +312,7 @@ class Slam:
                 raise ValueError(f"frame {idx}: right image shape {gr.shape} != left {gray.shape}")
             fr = extract_orb(gr, self.cfg.orb)
             feats.depth = stereo_depths(gray, gr, feats, fr, self.camera.fx, float(self.camera.baseline),
-                                        self.cfg.orb.scale_factor)
+                                        self.cfg.orb.scale_factor, zero_mean=self.cfg.stereo_zero_mean_sad)
             if math.isfinite(self.cfg.stereo_max_depth_baselines):  # far keypoints as monocular ones
                 far = feats.depth >= self.cfg.stereo_max_depth_baselines * float(self.camera.baseline)
                 feats.depth = np.where(far, np.nan, feats.depth)
