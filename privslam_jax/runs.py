@@ -14,6 +14,7 @@ that died or failed: its files are not results.
 from __future__ import annotations
 
 import json
+import math
 import platform
 import shutil
 import sys
@@ -101,11 +102,27 @@ def claim_run_folder(out: str | Path, command: str, arguments: dict[str, Any], o
     out.mkdir(parents=True, exist_ok=True)
     manifest = {"command": command, "argv": sys.argv[1:], "arguments": arguments, "versions": _versions(),
                 "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "complete": False}
-    write_atomic(out / MANIFEST, json.dumps(manifest, indent=1, default=str) + "\n")
+    write_atomic(out / MANIFEST, _manifest_json(manifest))
     return manifest
 
 
 def complete_run_folder(out: str | Path, manifest: dict[str, Any]) -> None:
     """Mark the run finished: the manifest, rewritten last with ``"complete": true``."""
     done = dict(manifest, complete=True, finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
-    write_atomic(Path(out) / MANIFEST, json.dumps(done, indent=1, default=str) + "\n")
+    write_atomic(Path(out) / MANIFEST, _manifest_json(done))
+
+
+def _strict(value: Any) -> Any:
+    """``value`` with every non-finite float as its string (``"inf"``, ``"nan"``): JSON has no Infinity."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_strict(v) for v in value]
+    return value
+
+
+def _manifest_json(manifest: dict[str, Any]) -> str:
+    """The manifest as strict JSON (an argument such as ``--stereo-max-depth-baselines inf`` included)."""
+    return json.dumps(_strict(manifest), indent=1, default=str, allow_nan=False) + "\n"

@@ -20,6 +20,20 @@ def test_manifest_is_incomplete_until_the_run_completes(tmp_path):
     assert read_manifest(out)["complete"] is True
 
 
+def test_manifest_is_strict_json_with_an_infinite_argument(tmp_path):
+    """``--stereo-max-depth-baselines inf`` in the arguments: both manifests parse with a parser that
+    refuses JSON's missing Infinity/NaN, the values kept as strings."""
+    def strict(text):
+        return json.loads(text, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c} in the manifest"))
+
+    out = tmp_path / "r"
+    m = claim_run_folder(out, "slam", {"stereo_max_depth_baselines": float("inf"), "limits": [1.0, float("nan")]})
+    assert strict((out / MANIFEST).read_text())["arguments"] == {"stereo_max_depth_baselines": "inf",
+                                                                  "limits": [1.0, "nan"]}
+    complete_run_folder(out, m)
+    assert strict((out / MANIFEST).read_text())["complete"] is True
+
+
 def test_a_folder_with_another_run_is_refused_then_cleared_with_overwrite(tmp_path):
     out = tmp_path / "r"
     claim_run_folder(out, "slam", {})
