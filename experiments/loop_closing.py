@@ -20,8 +20,10 @@ Protocol:
   camera centres of its two keyframes are within 5 m.
 - ``--resume FILE`` appends each finished run to a JSON-lines file and skips runs already there
   (delete it after changing the SLAM code); a damaged line other than the last (which a kill may
-  cut short) is refused.  Issue 16's goal: with loop closing stereo SE(3) ATE
-  ≤ 0.1 % and mono Sim(3) ATE ≤ 0.3 % of the path; 0 false loops.
+  cut short) is refused.  ``--stereo-max-depth-baselines B`` and ``--stereo-zero-mean-sad`` set the
+  ``SlamConfig`` options of those names for the stereo runs (part of a run's key in the resume file).
+  Issue 16's goal: with loop closing stereo SE(3) ATE ≤ 0.1 % and mono Sim(3) ATE ≤ 0.3 % of the
+  path; 0 false loops.
 """
 
 from __future__ import annotations
@@ -40,9 +42,10 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 configure_xla()
 
 
-def run_one(world: int, route: str, frames: int, mode: str, loop: bool, far: float = math.inf, seed: int = 0) -> dict:
+def run_one(world: int, route: str, frames: int, mode: str, loop: bool, far: float = math.inf,
+            zero_mean: bool = False, seed: int = 0) -> dict:
     """One SLAM run on one rendered world; metrics and the loops it closed (``far``:
-    ``SlamConfig.stereo_max_depth_baselines``)."""
+    ``SlamConfig.stereo_max_depth_baselines``, ``zero_mean``: ``SlamConfig.stereo_zero_mean_sad``)."""
     import cv2
     import numpy as np
 
@@ -70,7 +73,8 @@ def run_one(world: int, route: str, frames: int, mode: str, loop: bool, far: flo
                 yield (grey(f.image), grey(f.image_right)) if mode == "stereo" else grey(f.image)
 
     t0 = time.perf_counter()
-    res = run_slam(items(), seq.camera, SlamConfig(mode=mode, seed=seed, loop_closing=loop, stereo_max_depth_baselines=far),
+    res = run_slam(items(), seq.camera, SlamConfig(mode=mode, seed=seed, loop_closing=loop, stereo_max_depth_baselines=far,
+                                            stereo_zero_mean_sad=zero_mean),
                    timestamps=seq.timestamps)
     wall = time.perf_counter() - t0
     gt = seq.poses
@@ -86,6 +90,7 @@ def run_one(world: int, route: str, frames: int, mode: str, loop: bool, far: flo
     loop_s = float(np.nansum(res.timings["loop"])) if "loop" in res.timings else 0.0
     return {"world": world, "route": route, "frames": frames, "mode": mode, "loop_closing": loop, "seed": seed,
             **({} if math.isinf(far) else {"stereo_max_depth_baselines": far}),
+            **({"stereo_zero_mean_sad": True} if zero_mean else {}),
             "ate_m": float(err), "path_m": path, "ate_pct": 100.0 * float(err) / path,
             "tracked": int(res.tracked.sum()), "keyframes": len(res.keyframe_indices), "loops": loops,
             "wall_s": wall, "loop_s": loop_s}
@@ -96,10 +101,10 @@ def _key(t: tuple) -> str:
 
 
 def _task(r: dict) -> tuple:
-    """The task tuple of a finished run (records without the far-point setting ran with every depth, or
-    are mono)."""
+    """The task tuple of a finished run (records without the far-point setting ran with every depth,
+    records without the SAD setting with ORB-SLAM's, or are mono)."""
     return (r["world"], r["route"], r["frames"], r["mode"], r["loop_closing"],
-            r.get("stereo_max_depth_baselines", math.inf))
+            r.get("stereo_max_depth_baselines", math.inf), r.get("stereo_zero_mean_sad", False))
 
 
 def write_report(runs: list[dict], path: Path, command: str) -> str:
@@ -164,20 +169,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=math.inf,
                     help="SlamConfig.stereo_max_depth_baselines: stereo keypoints this many baselines away or "
                     "farther are used as monocular ones (default inf: every depth, as ORB-SLAM and SlamConfig)")
+    ap.add_argument("--stereo-zero-mean-sad", action="store_true",
+                    help="SlamConfig.stereo_zero_mean_sad for the stereo runs (default off: ORB-SLAM's centre-pixel SAD)")
     args = ap.parse_args(argv)
     far = args.stereo_max_depth_baselines
     modes = [m for m in args.modes.split(",") if m]
     if not modes or any(m not in ("stereo", "mono") for m in modes):
         ap.error(f"--modes must list stereo and/or mono, got {args.modes!r}")
-    depth_limit = {"stereo": far, "mono": math.inf}  # mono frames have no stereo depth: not part of the run's key
-    tasks = [(w, "loop", args.loop_frames, m, lc, depth_limit[m]) for m in modes for w in parse_seeds(args.loop_worlds)
+    # mono frames have no stereo depth: the stereo settings are not part of a mono run's key
+    stereo = {"stereo": (far, args.stereo_zero_mean_sad), "mono": (math.inf, False)}
+    tasks = [(w, "loop", args.loop_frames, m, lc, *stereo[m]) for m in modes for w in parse_seeds(args.loop_worlds)
              for lc in (True, False)]
-    tasks += [(w, "staircase", args.plain_frames, m, True, depth_limit[m]) for m in modes
+    tasks += [(w, "staircase", args.plain_frames, m, True, *stereo[m]) for m in modes
               for w in parse_seeds(args.plain_worlds)]
     from privslam_jax._shared import shared_dir
 
     if "mono" in modes and shared_dir() is not None:
-        tasks.append((0, "kitti-seq1", 51, "mono", True, math.inf))
+        tasks.append((0, "kitti-seq1", 51, "mono", True, math.inf, False))
     done: dict[str, dict] = {}
     if args.resume is not None and args.resume.is_file():
         lines = args.resume.read_text().splitlines()

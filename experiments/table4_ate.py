@@ -36,6 +36,7 @@ Command:
     python experiments/table4_ate.py --skip-kitti --skip-synth --jobs 2  # the loop worlds only
     python experiments/table4_ate.py --jobs 2 --resume runs.jsonl  # keep finished runs across restarts
     python experiments/table4_ate.py --filters edgeconnect,black     # other privacy variants (--filters '' : none)
+    python experiments/table4_ate.py --jobs 2 --stereo-zero-mean-sad  # stereo rows with SlamConfig.stereo_zero_mean_sad
 
 Runtime (2-core CPU): KITTI seq1 about 1 min per run after compilation; a synthetic 300-frame
 run about 2 min idle (stereo, RGB-D) to 3 min (mono), several times more on a loaded machine;
@@ -99,6 +100,8 @@ class Config:
     """Frames of a loop world (one lap and ~40 m again)."""
     loop_modes: tuple[str, ...] = ("stereo", "mono")
     """Modes run on the loop worlds."""
+    stereo_zero_mean_sad: bool = False
+    """``SlamConfig.stereo_zero_mean_sad`` for the stereo runs."""
     out: str = "results/table4_ate.md"
     """Markdown output."""
 
@@ -108,14 +111,15 @@ def get_config() -> Config:
 
 
 def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.ndarray, ignore=None,
-         loop_closing: bool = False) -> dict:
+         loop_closing: bool = False, zero_mean_sad: bool = False) -> dict:
     """One SLAM run and its metrics (ATE, RPE, path length, tracked frames, relocalisations, maps,
     loops, timings)."""
     from privslam_jax.metrics.trajectory import ate, rpe
     from privslam_jax.slam.system import SlamConfig, run_slam
 
     t0 = time.perf_counter()
-    res = run_slam(frames, camera, SlamConfig(mode=mode, seed=seed, loop_closing=loop_closing), timestamps=timestamps,
+    res = run_slam(frames, camera, SlamConfig(mode=mode, seed=seed, loop_closing=loop_closing,
+                                                 stereo_zero_mean_sad=zero_mean_sad), timestamps=timestamps,
                    ignore=ignore)
     wall = time.perf_counter() - t0
     T = np.asarray(res.trajectory.as_matrices(), np.float64)
@@ -152,14 +156,15 @@ def _run(frames, camera, mode: str, seed: int, timestamps: np.ndarray, gt: np.nd
 
 
 def _seq_job(path: str, mode: str, seed: int, n_frames: int | None, ignore_masked: bool = False,
-             loop_closing: bool = False) -> dict:
+             loop_closing: bool = False, zero_mean_sad: bool = False) -> dict:
     """One run on a KITTI-layout sequence folder (module-level: picklable for the process pool)."""
     from privslam_jax.slam.outputs import load_sequence_frames, masked_regions
 
     seq, frames, n = load_sequence_frames(path, mode, n_frames)
     ignore = masked_regions(seq, n) if ignore_masked else None
     try:
-        return _run(frames, seq.camera, mode, seed, seq.timestamps[:n], seq.poses[:n], ignore, loop_closing)
+        return _run(frames, seq.camera, mode, seed, seq.timestamps[:n], seq.poses[:n], ignore, loop_closing,
+                    zero_mean_sad)
     except Exception as err:  # noqa: BLE001 - a crashing run is a result: reported, the others go on
         import traceback
 
@@ -187,11 +192,13 @@ class Task(NamedTuple):
     """No features where the filter's ``masks/`` is nonzero (``privslam slam --ignore-masked``)."""
     loop_closing: bool = False
     """``SlamConfig.loop_closing``."""
+    zero_mean_sad: bool = False
+    """``SlamConfig.stereo_zero_mean_sad`` (stereo runs only)."""
 
 
 def _job_args(t: Task) -> tuple:
     """The arguments of :func:`_seq_job` for ``t``."""
-    return t.path, t.mode, t.seed, t.frames, t.ignore_masked, t.loop_closing
+    return t.path, t.mode, t.seed, t.frames, t.ignore_masked, t.loop_closing, t.zero_mean_sad
 
 
 def _kitti_tasks(cfg: Config) -> list[Task]:
@@ -300,7 +307,7 @@ def _run_tasks(tasks: list[Task], jobs: int, resume: Path | None = None) -> list
 
     def key(t: Task) -> str:
         return (f"{t.path}|{t.mode}|{t.seed}|{t.frames}" + ("|masked" if t.ignore_masked else "")
-                + ("|loop closing" if t.loop_closing else ""))
+                + ("|loop closing" if t.loop_closing else "") + ("|zero-mean SAD" if t.zero_mean_sad else ""))
 
     done: dict[str, dict] = {}
     if resume is not None and resume.is_file():
@@ -509,6 +516,8 @@ def main() -> None:
     p.add_argument("--modes", default=None, help="comma-separated synthetic modes (default stereo,rgbd,mono)")
     p.add_argument("--filters", default=None,
                    help="comma-separated privacy filters run as extra rows (default edgeconnect,telea; '' for none)")
+    p.add_argument("--stereo-zero-mean-sad", action="store_true",
+                   help="stereo runs with SlamConfig.stereo_zero_mean_sad (default off: ORB-SLAM's centre-pixel SAD)")
     p.add_argument("--out", default=None)
     p.add_argument("--jobs", type=int, default=1, help="runs in parallel processes (default 1)")
     p.add_argument("--resume", type=Path, default=None,
@@ -535,9 +544,13 @@ def main() -> None:
         cfg = dataclasses.replace(cfg, loop_worlds=tuple(parse_seeds(a.loop_worlds)))
     if a.loop_frames is not None:
         cfg = dataclasses.replace(cfg, loop_frames=a.loop_frames)
+    if a.stereo_zero_mean_sad:
+        cfg = dataclasses.replace(cfg, stereo_zero_mean_sad=True)
     tasks = [] if a.skip_kitti else _kitti_tasks(cfg)
     tasks += [] if a.skip_synth else _synth_tasks(cfg, a.synth_dir)
     tasks += [] if a.skip_loops or not cfg.loop_worlds else _loop_tasks(cfg, a.synth_dir)
+    if cfg.stereo_zero_mean_sad:
+        tasks = [t._replace(zero_mean_sad=True) if t.mode == "stereo" else t for t in tasks]
     if not tasks:
         raise SystemExit("nothing to run: KITTI needs ../shared, and --skip-synth and --skip-loops were given")
     command = "python experiments/table4_ate.py " + " ".join(sys.argv[1:])
