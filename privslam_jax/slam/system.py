@@ -122,7 +122,9 @@ class SlamConfig:
     stereo_zero_mean_sad: bool = False
     """Stereo: refine each match by SAD of zero-mean patches instead of ORB-SLAM's patches minus their
     centre pixel, which gives the keypoints of pyramid levels ≥ 1 disparities a few hundredths of a
-    pixel short (``frontend._sad_refine``); ``False`` (default) is ORB-SLAM's."""
+    pixel short (``frontend._sad_refine``); ``False`` (default) is ORB-SLAM's.  On Table 4's stereo
+    rows it was better in 16 of 25 runs but not on EdgeConnect-filtered frames (docs/slam.md, "Stereo
+    disparities of coarse keypoints")."""
     rgbd_close_depth: float = 20.0
     """RGB-D: close-point depth threshold, metres."""
     min_init_points: int = 300
