@@ -37,6 +37,7 @@ Command:
     python experiments/table4_ate.py --jobs 2 --resume runs.jsonl  # keep finished runs across restarts
     python experiments/table4_ate.py --filters edgeconnect,black     # other privacy variants (--filters '' : none)
     python experiments/table4_ate.py --jobs 2 --stereo-zero-mean-sad  # stereo rows with SlamConfig.stereo_zero_mean_sad
+    python experiments/table4_ate.py --skip-kitti --skip-loops --synth-worlds 15-19 --modes stereo --jobs 2  # other worlds
 
 Runtime (2-core CPU): KITTI seq1 about 1 min per run after compilation; a synthetic 300-frame
 run about 2 min idle (stereo, RGB-D) to 3 min (mono), several times more on a loaded machine;
@@ -509,6 +510,8 @@ def main() -> None:
     p.add_argument("--synth-dir", default=None, help="where the synthetic worlds are rendered (reused when present)")
     p.add_argument("--skip-kitti", action="store_true")
     p.add_argument("--skip-synth", action="store_true", help="skip the synthetic worlds without loops")
+    p.add_argument("--synth-worlds", type=seed_list, default=None,
+                   help="synthetic world seeds without loops, a list and ranges such as 15-19 (default 0-4, or --seeds)")
     p.add_argument("--skip-loops", action="store_true", help="skip the loop worlds")
     p.add_argument("--loop-worlds", type=seed_list, default=None,
                    help="loop-world seeds, a list and ranges such as 7,11-14 (the default)")
@@ -526,6 +529,10 @@ def main() -> None:
     cfg = get_config()
     if a.seeds is not None:
         cfg = dataclasses.replace(cfg, seeds=tuple(range(a.seeds)), synth_worlds=tuple(range(a.seeds)))
+    if a.synth_worlds is not None:
+        from privslam_jax.data.synthetic import parse_seeds
+
+        cfg = dataclasses.replace(cfg, synth_worlds=tuple(parse_seeds(a.synth_worlds)))
     if a.frames is not None:
         cfg = dataclasses.replace(cfg, synth_frames=a.frames)
     if a.modes is not None:
