@@ -1,6 +1,6 @@
 """Per-stage SLAM timings at 1226×370 after compilation: monocular on KITTI seq1, or stereo.
 
-Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo] [--mapper-busy-frames N] [--loop-closing]
+Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo [--stereo-zero-mean-sad]] [--mapper-busy-frames N] [--loop-closing]
 
 ``--stereo`` runs stereo SLAM on a synthetic stereo street at KITTI's size (1226×370, seed 0;
 ``seq1`` in ``../shared`` has no right images), so that the stereo matching stage is timed too.
@@ -37,6 +37,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=51)
     p.add_argument("--stereo", action="store_true", help="stereo SLAM on a synthetic 1226x370 stereo street")
+    p.add_argument("--stereo-zero-mean-sad", action="store_true",
+                   help="with --stereo: SlamConfig.stereo_zero_mean_sad=True (zero-mean instead of centre-pixel SAD)")
     p.add_argument("--mapper-busy-frames", type=nonnegative_int, default=None,
                    help="SlamConfig.mapper_busy_frames (default: SlamConfig's)")
     p.add_argument("--loop-closing", action="store_true",
@@ -61,6 +63,10 @@ def main() -> None:
         seq = KittiSequence(shared / "data/kitti_odometry/sequences/seq1", grey=True)
         n, camera, name, config = min(a.frames, len(seq)), seq.camera, "KITTI seq1", SlamConfig()
         images = [to_gray_u8(seq.image(i)) for i in range(n)]
+    if a.stereo_zero_mean_sad:
+        if not a.stereo:
+            p.error("--stereo-zero-mean-sad needs --stereo")
+        config = dataclasses.replace(config, stereo_zero_mean_sad=True)
     if a.mapper_busy_frames is not None:
         config = dataclasses.replace(config, mapper_busy_frames=a.mapper_busy_frames)
     if a.loop_closing:
