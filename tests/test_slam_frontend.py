@@ -206,16 +206,21 @@ def _sad_reference(left, right, ul, v, ur, half=5, span=5, zero_mean=False):
     return out, good
 
 
-@pytest.mark.parametrize("zero_mean", [False, True])
-def test_sub_pixel_stereo_search_matches_a_plain_loop(zero_mean):
+@pytest.mark.parametrize("zero_mean, half, contrast", [(False, 5, False), (True, 5, False), (True, 5, True),
+                                                     (True, 6, True)])
+def test_sub_pixel_stereo_search_matches_a_plain_loop(zero_mean, half, contrast):
+    """Against float64 loops; ``contrast``: black/white pixels, the extremes of the integer ranges
+    (zero-mean 11×11 patches in int16, 13×13 in int32)."""
     rng = np.random.default_rng(4)
     left = cv2.GaussianBlur(rng.integers(0, 256, (60, 120)).astype(np.uint8), (0, 0), 1.0)
+    if contrast:
+        left = np.where(left > 127, 255, 0).astype(np.uint8)
     right = np.roll(left, -6, axis=1)
     n = 300  # in the middle, at the borders and outside
     ul, v = rng.uniform(-3, 123, n), rng.uniform(-3, 63, n)
     ur = ul - 6 + rng.uniform(-4, 4, n)
-    out, good = _sad_refine(left, right, ul, v, ur, zero_mean=zero_mean)
-    ref_out, ref_good = _sad_reference(left, right, ul, v, ur, zero_mean=zero_mean)
+    out, good = _sad_refine(left, right, ul, v, ur, half=half, zero_mean=zero_mean)
+    ref_out, ref_good = _sad_reference(left, right, ul, v, ur, half=half, zero_mean=zero_mean)
     np.testing.assert_array_equal(good, ref_good)
     assert 100 < good.sum() < n
     np.testing.assert_allclose(out, ref_out, rtol=0, atol=1e-5)

@@ -332,8 +332,8 @@ def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarr
     zero-mean SAD leaves every octave unbiased (``tests/test_slam_frontend.py``).
     Patches are read through a strided window view of the images (no index grid per pixel) and
     compared in integers: centre-pixel patches as they are, zero-mean patches scaled by the pixel
-    count ``P`` (``P·x − Σx``), absolute differences summed exactly (at most ``P²·510`` < 2²⁴), so
-    the float32 SADs are exact, bit for bit on every machine."""
+    count ``P`` (``P·x − Σx``; int16 up to 11×11), absolute differences summed exactly (at most
+    ``P²·510`` < 2²⁴), so the float32 SADs are exact, bit for bit on every machine."""
     h, w = left.shape
     n = ul.size
     ui, vi, uri = np.rint(ul).astype(np.int64), np.rint(v).astype(np.int64), np.rint(ur).astype(np.int64)
@@ -347,16 +347,24 @@ def _sad_refine(left: np.ndarray, right: np.ndarray, ul: np.ndarray, v: np.ndarr
     left_windows = np.lib.stride_tricks.sliding_window_view(left, (size, size))  # [y, x] = patch at (y, x)
     right_windows = np.lib.stride_tricks.sliding_window_view(right, (size, size))
     shifts = np.arange(-span, span + 1)
-    dtype = np.int32 if zero_mean else np.int16  # int16 holds centre-pixel differences (±255)
+    # int16 holds centre-pixel differences (±255) and, up to 11×11 patches, the scaled zero-mean
+    # values P·x − Σx (|·| ≤ P·255 < 2¹⁵); larger zero-mean patches need int32
+    wide = zero_mean and size * size * 255 >= 2 ** 15
+    dtype = np.int32 if wide else np.int16
     lp = left_windows[vi[idx] - half, ui[idx] - half].astype(dtype)  # (n, P, P)
     rp = right_windows[vi[idx, None] - half, uri[idx, None] + shifts[None, :] - half].astype(dtype)  # (n, S, P, P)
     if zero_mean:
-        lp = size * size * lp - lp.sum(axis=(1, 2), keepdims=True)
-        rp = size * size * rp - rp.sum(axis=(2, 3), keepdims=True)
+        lp = size * size * lp - lp.sum(axis=(1, 2), keepdims=True, dtype=dtype)
+        rp = size * size * rp - rp.sum(axis=(2, 3), keepdims=True, dtype=dtype)
     else:
         lp = lp - lp[:, half:half + 1, half:half + 1]
         rp = rp - rp[:, :, half:half + 1, half:half + 1]
-    sad = np.abs(rp - lp[:, None]).sum(axis=(2, 3), dtype=np.int32).astype(np.float32)  # (n, S)
+    lq = lp[:, None]
+    if zero_mean and not wide:  # |a − b| ≤ 2·P·255 < 2¹⁶: max − min, wrapped in int16, read as uint16
+        diff = (np.maximum(rp, lq) - np.minimum(rp, lq)).view(np.uint16)
+    else:
+        diff = np.abs(rp - lq)
+    sad = diff.sum(axis=(2, 3), dtype=np.int32).astype(np.float32)  # (n, S)
     b = np.argmin(sad, axis=1)
     inner = (b > 0) & (b < 2 * span)
     bc = np.clip(b, 1, 2 * span - 1)
