@@ -37,7 +37,7 @@ Command:
     python experiments/table4_ate.py --jobs 2 --resume runs.jsonl  # keep finished runs across restarts
     python experiments/table4_ate.py --filters edgeconnect,black     # other privacy variants (--filters '' : none)
     python experiments/table4_ate.py --jobs 2 --stereo-zero-mean-sad  # stereo rows with SlamConfig.stereo_zero_mean_sad
-    python experiments/table4_ate.py --skip-kitti --skip-loops --synth-worlds 15-19 --modes stereo --jobs 2  # other worlds
+    python experiments/table4_ate.py --skip-kitti --skip-loops --synth-worlds 15-24 --modes stereo --jobs 2  # other worlds
 
 Runtime (2-core CPU): KITTI seq1 about 1 min per run after compilation; a synthetic 300-frame
 run about 2 min idle (stereo, RGB-D) to 3 min (mono), several times more on a loaded machine;

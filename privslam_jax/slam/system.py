@@ -124,8 +124,8 @@ class SlamConfig:
     centre pixel, which gives the keypoints of pyramid levels ≥ 1 disparities a few hundredths of a
     pixel short (``frontend._sad_refine``); ``False`` (default) is ORB-SLAM's.  On Table 4's stereo
     rows it was better in 16 of 25 runs but not on EdgeConnect-filtered frames; on ten held-out
-    worlds in 22 of 30, filtered frames included, but with the only run that lost tracking (world
-    22 after Telea; docs/slam.md, "Stereo disparities of coarse keypoints")."""
+    worlds in 22 of 30, filtered frames included, but with the only two runs that lost frames (worlds
+    18 and 22 after Telea; docs/slam.md, "Stereo disparities of coarse keypoints")."""
     rgbd_close_depth: float = 20.0
     """RGB-D: close-point depth threshold, metres."""
     min_init_points: int = 300
