@@ -44,6 +44,8 @@ def main() -> None:
     p.add_argument("--loop-closing", action="store_true",
                    help="SlamConfig.loop_closing=True: place recognition over every keyframe (the whole system)")
     a = p.parse_args()
+    if a.stereo_zero_mean_sad and not a.stereo:
+        p.error("--stereo-zero-mean-sad needs --stereo")
     from privslam_jax.slam.frontend import to_gray_u8
     from privslam_jax.slam.system import SlamConfig, run_slam
 
@@ -64,8 +66,6 @@ def main() -> None:
         n, camera, name, config = min(a.frames, len(seq)), seq.camera, "KITTI seq1", SlamConfig()
         images = [to_gray_u8(seq.image(i)) for i in range(n)]
     if a.stereo_zero_mean_sad:
-        if not a.stereo:
-            p.error("--stereo-zero-mean-sad needs --stereo")
         config = dataclasses.replace(config, stereo_zero_mean_sad=True)
     if a.mapper_busy_frames is not None:
         config = dataclasses.replace(config, mapper_busy_frames=a.mapper_busy_frames)

@@ -302,3 +302,30 @@ def test_train_script_refuses_bad_option_value(script, argv, option, train_scrip
 
 def test_every_train_script_is_covered():
     assert {s for s, _, _ in TRAIN_CASES} == {p.stem for p in (REPO / "train").glob("*.py")}
+
+
+@pytest.mark.parametrize("flag", [[], ["--stereo-zero-mean-sad"]])
+def test_slam_passes_its_stereo_options_to_the_config(flag, tmp_path, monkeypatch):
+    """``privslam slam``'s flags reach ``SlamConfig`` (the run itself is stubbed out after that)."""
+    import privslam_jax.commands.slam as slam_cmd
+    import privslam_jax.slam.system as system
+    from privslam_jax.types import Camera
+
+    class Stop(Exception):
+        pass
+
+    seen = {}
+
+    def fake_run_slam(frames, camera, cfg, **kw):
+        seen["cfg"] = cfg
+        raise Stop
+
+    cam = Camera(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=4, height=4, baseline=0.5)
+    seq = type("S", (), {"camera": cam, "timestamps": [0.0]})()
+    monkeypatch.setattr(slam_cmd, "load_sequence_frames", lambda path, mode, n: (seq, iter([]), 1))
+    monkeypatch.setattr(system, "run_slam", fake_run_slam)
+    with pytest.raises(Stop):
+        privslam_main(["slam", str(tmp_path / "seq"), "--mode", "stereo", "--stereo-max-depth-baselines", "80",
+                       *flag, "--out", str(tmp_path / "out")])
+    assert seen["cfg"].stereo_zero_mean_sad is bool(flag)
+    assert seen["cfg"].stereo_max_depth_baselines == 80.0 and seen["cfg"].mode == "stereo"

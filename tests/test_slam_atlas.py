@@ -15,6 +15,7 @@ import pytest
 from privslam_jax.data.synthetic import SynthConfig, make_sequence
 from privslam_jax.metrics.trajectory import ate
 from privslam_jax.slam.system import SlamConfig, run_slam
+from privslam_jax.slam.tracking import motion_deviation
 
 FIRST, BLACK, SECOND = range(0, 70), 25, range(20, 90)
 
@@ -89,3 +90,45 @@ def test_without_atlas_a_long_loss_relocalises_in_the_one_map(revisit):
 def test_new_map_after_must_not_be_negative():
     with pytest.raises(ValueError, match="new_map_after"):
         SlamConfig(new_map_after=-1)
+
+
+def _T(yaw_deg: float = 0.0, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """World-to-camera pose of a camera at ``centre`` turned by ``yaw_deg`` about its y axis."""
+    a = np.radians(yaw_deg)
+    R = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, -R @ np.asarray(centre, float)
+    return T
+
+
+@pytest.mark.parametrize(
+    ("centre", "yaw", "steps", "ratio"),
+    [((0, 0, 5), 0, 1, 0.0),      # where the prediction is
+     ((3, 0, 5), 30, 1, 0.6),     # 3 m aside after 5 m of travel, turned 30°
+     ((0, 0, 0), 0, 1, 1.0),      # stopped
+     ((0, 0, -5), 0, 12, 2.0),    # behind the start: nearest prediction is the first one
+     ((0, 0, 14), 0, 12, 0.0),    # frames that never arrived: 9 more frames of travel
+     ((0, 0, 19), 0, 12, 0.6),    # beyond the last step (16)
+     ((0, 0, 8), 0, 0, 0.6)],     # no steps: only the prediction 5 frames on
+)
+def test_motion_deviation_in_closed_form(centre, yaw, steps, ratio):
+    """Camera moving 1 m per frame along +z; lost for 5 frames: the prediction is at z = 5 … 4 + steps."""
+    velocity = _T(centre=(0, 0, 1))  # T_c_w(t+1) = velocity @ T_c_w(t), here from T_c_w(0) = I
+    got, deg = motion_deviation(_T(yaw, centre), np.eye(4), velocity, 5, steps)
+    assert got == pytest.approx(ratio, abs=1e-12)
+    assert deg == pytest.approx(yaw, abs=1e-9)
+
+
+def test_motion_deviation_under_a_turning_prediction_matches_a_plain_loop():
+    """Yaw 4° and 0.8 m per frame: the predicted centres lie on an arc; nearest one by brute force."""
+    velocity = _T(4.0, (0.0, 0.0, 0.8))
+    T_last = _T(10.0, (2.0, 0.0, 7.0))
+    cand = _T(80.0, (12.0, 0.5, 11.0))
+    poses = [np.linalg.matrix_power(velocity, j) @ T_last for j in range(18 + 12)]
+    centres = np.array([-P[:3, :3].T @ P[:3, 3] for P in poses])
+    c = -cand[:3, :3].T @ cand[:3, 3]
+    want = np.linalg.norm(centres[18:] - c, axis=1).min() / np.linalg.norm(centres[18] - centres[0])
+    got, deg = motion_deviation(cand, T_last, velocity, 18, 12)
+    assert got == pytest.approx(want, rel=1e-12)
+    assert deg == pytest.approx(2.0, abs=1e-9)  # yaws about one axis add: 80° against 10° + 18 × 4°
+

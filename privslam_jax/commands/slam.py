@@ -56,6 +56,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=None, metavar="B",
                    help="stereo: keypoints B baselines away or farther are used as monocular ones (default inf: "
                         "every stereo depth, as ORB-SLAM; docs/slam.md, 'Far stereo points')")
+    p.add_argument("--stereo-zero-mean-sad", action="store_true",
+                   help="stereo: refine stereo matches by SAD of zero-mean patches instead of ORB-SLAM's patches minus "
+                        "their centre pixel (docs/slam.md, 'Stereo disparities of coarse keypoints')")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     ignore = masked_regions(seq, n) if args.ignore_masked else None
     cfg = SlamConfig(mode=args.mode, seed=args.seed, loop_closing=args.loop_closing or args.vocabulary is not None,
                      vocabulary=None if args.vocabulary is None else str(args.vocabulary),
-                     new_map_after=args.new_map_after,
+                     new_map_after=args.new_map_after, stereo_zero_mean_sad=args.stereo_zero_mean_sad,
                      **({} if args.stereo_max_depth_baselines is None
                         else {"stereo_max_depth_baselines": args.stereo_max_depth_baselines}))
     t0 = time.perf_counter()

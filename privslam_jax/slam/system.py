@@ -64,6 +64,7 @@ from privslam_jax.slam.mapping import (
 from privslam_jax.slam.tracking import (
     Frame,
     TrackingConfig,
+    motion_deviation,
     relocalise,
     relocalise_along_motion,
     track_keyframe_pnp,
@@ -125,7 +126,9 @@ class SlamConfig:
     pixel short (``frontend._sad_refine``); ``False`` (default) is ORB-SLAM's.  On Table 4's stereo
     rows it was better in 16 of 25 runs but not on EdgeConnect-filtered frames; on ten held-out
     worlds in 22 of 30, filtered frames included, but with the only two runs that lost frames (worlds
-    18 and 22 after Telea; docs/slam.md, "Stereo disparities of coarse keypoints")."""
+    18 and 22 after Telea); on world 22 after Telea it loses tracking where the filter blanks most of
+    the frame in 3 of 8 RANSAC seeds, ORB-SLAM's in none (docs/slam.md, "Stereo disparities of coarse
+    keypoints")."""
     rgbd_close_depth: float = 20.0
     """RGB-D: close-point depth threshold, metres."""
     min_init_points: int = 300
@@ -511,7 +514,11 @@ class Slam:
                 n = relocalise(frame, m, seed, tcfg, self._active_keyframes())
                 tim["reloc"] = time.perf_counter() - t
                 if n >= tcfg.reloc_min_inliers:
-                    self.events.append(f"relocalised at frame {frame.index} ({n} inliers)")
+                    note = ""
+                    if self._velocity is not None:  # how well the motion prior agrees: a check on aliasing
+                        ratio, deg = motion_deviation(frame.T_c_w, T_last, self._velocity, gap, tcfg.reloc_motion_steps)
+                        note = f"; {ratio:.2f} × the predicted travel and {deg:.0f}° from the motion prediction"
+                    self.events.append(f"relocalised at frame {frame.index} ({n} inliers{note})")
             if frame.T_c_w is None:  # no stage estimated a pose: nothing to search the local map with
                 n = 0
             if n >= 10:

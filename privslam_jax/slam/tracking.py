@@ -38,7 +38,7 @@ from privslam_jax.slam.refine import refine_pose as _jax_refine_pose
 from privslam_jax.types import Camera
 
 __all__ = ["TrackingConfig", "Frame", "refine_pose", "pnp_ransac", "track_motion_model", "track_local_map",
-           "track_keyframe_pnp", "relocalise", "relocalise_along_motion"]
+           "track_keyframe_pnp", "relocalise", "relocalise_along_motion", "motion_deviation"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -281,6 +281,29 @@ def relocalise_along_motion(frame: Frame, m: Map, T_last: np.ndarray, velocity: 
             best = (n, frame.T_c_w, frame.point_ids.copy())
     frame.T_c_w, frame.point_ids = best[1], best[2] if best[2] is not None else np.full(len(frame.feats), -1)
     return best[0]
+
+
+def motion_deviation(T_c_w: np.ndarray, T_last: np.ndarray, velocity: np.ndarray, gap: int,
+                     steps: int) -> tuple[float, float]:
+    """How far a pose ``T_c_w`` is from the constant-velocity prediction after a loss.
+
+    The prediction ``j`` frames on is ``velocity^j · T_last`` (all ``(4, 4)`` world-to-camera).
+    Returns the distance from ``T_c_w``'s camera centre to the nearest predicted centre for
+    ``j = gap … gap + max(steps, 1) − 1`` (frames that never arrived, as in :func:`relocalise_along_motion`)
+    over the distance the prediction travels in ``gap`` frames — scale-free, so a monocular map needs
+    no metric scale — and the rotation from the prediction ``gap`` frames on, in degrees.
+    """
+    def centre(T: np.ndarray) -> np.ndarray:
+        return -T[:3, :3].T @ T[:3, 3]
+
+    T_pred = np.linalg.matrix_power(velocity, gap) @ T_last
+    travel = float(np.linalg.norm(centre(T_pred) - centre(T_last)))
+    c, T_j, dev = centre(T_c_w), T_pred, np.inf
+    for _ in range(max(steps, 1)):
+        dev = min(dev, float(np.linalg.norm(c - centre(T_j))))
+        T_j = velocity @ T_j
+    cos = (np.trace(T_c_w[:3, :3] @ T_pred[:3, :3].T) - 1.0) / 2.0
+    return dev / max(travel, 1e-12), float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def relocalise(frame: Frame, m: Map, seed: int, cfg: TrackingConfig, keyframes: np.ndarray | None = None) -> int:
