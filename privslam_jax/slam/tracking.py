@@ -293,14 +293,11 @@ def motion_deviation(T_c_w: np.ndarray, T_last: np.ndarray, velocity: np.ndarray
     over the distance the prediction travels in ``gap`` frames — scale-free, so a monocular map needs
     no metric scale — and the rotation from the prediction ``gap`` frames on, in degrees.
     """
-    def centre(T: np.ndarray) -> np.ndarray:
-        return -T[:3, :3].T @ T[:3, 3]
-
     T_pred = np.linalg.matrix_power(velocity, gap) @ T_last
-    travel = float(np.linalg.norm(centre(T_pred) - centre(T_last)))
-    c, T_j, dev = centre(T_c_w), T_pred, np.inf
+    travel = float(np.linalg.norm(camera_center(T_pred) - camera_center(T_last)))
+    c, T_j, dev = camera_center(T_c_w), T_pred, np.inf
     for _ in range(max(steps, 1)):
-        dev = min(dev, float(np.linalg.norm(c - centre(T_j))))
+        dev = min(dev, float(np.linalg.norm(c - camera_center(T_j))))
         T_j = velocity @ T_j
     cos = (np.trace(T_c_w[:3, :3] @ T_pred[:3, :3].T) - 1.0) / 2.0
     return dev / max(travel, 1e-12), float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
