@@ -38,6 +38,7 @@ Command:
     python experiments/table4_ate.py --filters edgeconnect,black     # other privacy variants (--filters '' : none)
     python experiments/table4_ate.py --jobs 2 --stereo-zero-mean-sad  # stereo rows with SlamConfig.stereo_zero_mean_sad
     python experiments/table4_ate.py --skip-kitti --skip-loops --synth-worlds 15-24 --modes stereo --jobs 2  # other worlds
+    python experiments/table4_ate.py --skip-kitti --skip-loops --modes stereo --masked-modes stereo  # stereo, masked too
 
 Runtime (2-core CPU): KITTI seq1 about 1 min per run after compilation; a synthetic 300-frame
 run about 2 min idle (stereo, RGB-D) to 3 min (mono), several times more on a loaded machine;
@@ -519,6 +520,8 @@ def main() -> None:
     p.add_argument("--modes", default=None, help="comma-separated synthetic modes (default stereo,rgbd,mono)")
     p.add_argument("--filters", default=None,
                    help="comma-separated privacy filters run as extra rows (default edgeconnect,telea; '' for none)")
+    p.add_argument("--masked-modes", default=None,
+                   help="comma-separated modes also run on filtered frames with --ignore-masked (default mono; '' for none)")
     p.add_argument("--stereo-zero-mean-sad", action="store_true",
                    help="stereo runs with SlamConfig.stereo_zero_mean_sad (default off: ORB-SLAM's centre-pixel SAD)")
     p.add_argument("--out", default=None)
@@ -543,6 +546,10 @@ def main() -> None:
         cfg = dataclasses.replace(cfg, filters=tuple(f for f in a.filters.split(",") if f))
         if unknown := set(cfg.filters) - set(FILTER_METHODS):
             raise SystemExit(f"unknown filter(s) {sorted(unknown)}; choose from {', '.join(FILTER_METHODS)}")
+    if a.masked_modes is not None:
+        cfg = dataclasses.replace(cfg, masked_modes=tuple(m for m in a.masked_modes.split(",") if m))
+        if unknown := set(cfg.masked_modes) - set(cfg.filter_modes):
+            raise SystemExit(f"--masked-modes {sorted(unknown)}: only {', '.join(cfg.filter_modes)} run on filtered frames")
     if a.out is not None:
         cfg = dataclasses.replace(cfg, out=a.out)
     if a.loop_worlds is not None:

@@ -102,3 +102,13 @@ def test_counts_of_lost_frames_relocalisations_maps_and_loops(tmp_path):
     assert rows["KITTI seq1 (51 frames)"][-4:] == ["0", "—", "—", "—"]
     every = [ln for ln in text.split("## Every run")[1].splitlines() if ln.startswith("| world")]
     assert len(every) == 9 and sum(", loop closing |" in ln for ln in every) == 4
+
+
+def test_masked_modes_outside_the_filtered_modes_are_refused():
+    """``--masked-modes rgbd`` names a mode that never runs on filtered frames: exit before any run."""
+    import subprocess
+
+    r = subprocess.run([sys.executable, str(ROOT / "experiments/table4_ate.py"), "--skip-kitti", "--masked-modes",
+                        "stereo,rgbd"], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "--masked-modes ['rgbd']: only stereo, mono run on filtered frames" in r.stderr
+    assert "rendering" not in r.stdout
