@@ -20,7 +20,6 @@ import logging
 import os
 import shutil
 import tempfile
-from pathlib import Path
 
 from privslam_jax._xla import configure_xla
 
@@ -79,27 +78,6 @@ def count_compiles():
             logger.removeHandler(handler)
 
     return counting
-
-
-SLOWEST_MODULES = ("test_data_parallel.py", "test_notebooks.py", "test_tradeoff_train.py", "test_pipeline.py",
-                   "test_solvers.py", "test_tradeoff_objectives.py", "test_resume_training.py", "test_slam_atlas.py",
-                   "test_pareto_tradeoff.py", "test_slam_loop.py", "test_filter_image.py", "test_localize.py",
-                   "test_edge.py", "test_attack_gradients.py", "test_yolo11_model.py", "test_inpaint_train.py",
-                   "test_optimised_lift.py")
-"""The modules with the most worker time, slowest first, as ``python benchmarks/suite_time.py`` lists
-them (a run at 9d5ec08); the rest of the 86 modules took less than the last of these."""
-
-
-def pytest_collection_modifyitems(config, items):
-    """Slowest modules first, the rest in collection order: ``--dist loadfile`` (with
-    ``--no-loadscope-reorder``, pyproject addopts) hands files out in this order, so the two workers
-    end together instead of one waiting on a long file handed out last.  xdist's own reordering puts
-    files with many tests first, which leaves the few-test, long files (data-parallel training, the
-    loop world) to the end."""
-    if missing := [name for name in SLOWEST_MODULES if not (Path(__file__).parent / name).is_file()]:
-        raise pytest.UsageError(f"tests/conftest.py SLOWEST_MODULES names modules that do not exist: {missing}")
-    rank = {name: i for i, name in enumerate(SLOWEST_MODULES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
 def pytest_configure(config):
