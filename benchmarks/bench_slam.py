@@ -1,6 +1,6 @@
 """Per-stage SLAM timings at 1226×370 after compilation: monocular on KITTI seq1, or stereo.
 
-Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo [--stereo-zero-mean-sad]] [--mapper-busy-frames N] [--loop-closing]
+Command:  python benchmarks/bench_slam.py [--frames 51] [--stereo [--no-stereo-zero-mean-sad]] [--mapper-busy-frames N] [--loop-closing]
 
 ``--stereo`` runs stereo SLAM on a synthetic stereo street at KITTI's size (1226×370, seed 0;
 ``seq1`` in ``../shared`` has no right images), so that the stereo matching stage is timed too.
@@ -37,15 +37,16 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=51)
     p.add_argument("--stereo", action="store_true", help="stereo SLAM on a synthetic 1226x370 stereo street")
-    p.add_argument("--stereo-zero-mean-sad", action="store_true",
-                   help="with --stereo: SlamConfig.stereo_zero_mean_sad=True (zero-mean instead of centre-pixel SAD)")
+    p.add_argument("--stereo-zero-mean-sad", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --stereo: SlamConfig.stereo_zero_mean_sad (default: SlamConfig's, on; --no-...: ORB-SLAM's "
+                        "centre-pixel SAD)")
     p.add_argument("--mapper-busy-frames", type=nonnegative_int, default=None,
                    help="SlamConfig.mapper_busy_frames (default: SlamConfig's)")
     p.add_argument("--loop-closing", action="store_true",
                    help="SlamConfig.loop_closing=True: place recognition over every keyframe (the whole system)")
     a = p.parse_args()
-    if a.stereo_zero_mean_sad and not a.stereo:
-        p.error("--stereo-zero-mean-sad needs --stereo")
+    if a.stereo_zero_mean_sad is not None and not a.stereo:
+        p.error("--[no-]stereo-zero-mean-sad needs --stereo")
     from privslam_jax.slam.frontend import to_gray_u8
     from privslam_jax.slam.system import SlamConfig, run_slam
 
@@ -65,8 +66,8 @@ def main() -> None:
         seq = KittiSequence(shared / "data/kitti_odometry/sequences/seq1", grey=True)
         n, camera, name, config = min(a.frames, len(seq)), seq.camera, "KITTI seq1", SlamConfig()
         images = [to_gray_u8(seq.image(i)) for i in range(n)]
-    if a.stereo_zero_mean_sad:
-        config = dataclasses.replace(config, stereo_zero_mean_sad=True)
+    if a.stereo_zero_mean_sad is not None:
+        config = dataclasses.replace(config, stereo_zero_mean_sad=a.stereo_zero_mean_sad)
     if a.mapper_busy_frames is not None:
         config = dataclasses.replace(config, mapper_busy_frames=a.mapper_busy_frames)
     if a.loop_closing:

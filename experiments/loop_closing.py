@@ -20,8 +20,9 @@ Protocol:
   camera centres of its two keyframes are within 5 m.
 - ``--resume FILE`` appends each finished run to a JSON-lines file and skips runs already there
   (delete it after changing the SLAM code); a damaged line other than the last (which a kill may
-  cut short) is refused.  ``--stereo-max-depth-baselines B`` and ``--stereo-zero-mean-sad`` set the
-  ``SlamConfig`` options of those names for the stereo runs (part of a run's key in the resume file).
+  cut short) is refused.  ``--stereo-max-depth-baselines B`` and ``--[no-]stereo-zero-mean-sad`` (default on)
+  set the ``SlamConfig`` options of those names for the stereo runs (part of a run's key in the
+  resume file).
   Issue 16's goal: with loop closing stereo SE(3) ATE ≤ 0.1 % and mono Sim(3) ATE ≤ 0.3 % of the
   path; 0 false loops.
 """
@@ -169,8 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=math.inf,
                     help="SlamConfig.stereo_max_depth_baselines: stereo keypoints this many baselines away or "
                     "farther are used as monocular ones (default inf: every depth, as ORB-SLAM and SlamConfig)")
-    ap.add_argument("--stereo-zero-mean-sad", action="store_true",
-                    help="SlamConfig.stereo_zero_mean_sad for the stereo runs (default off: ORB-SLAM's centre-pixel SAD)")
+    ap.add_argument("--stereo-zero-mean-sad", action=argparse.BooleanOptionalAction, default=True,
+                    help="SlamConfig.stereo_zero_mean_sad for the stereo runs (default on; --no-...: ORB-SLAM's "
+                    "centre-pixel SAD, the default before 2026-12-06)")
     args = ap.parse_args(argv)
     far = args.stereo_max_depth_baselines
     modes = [m for m in args.modes.split(",") if m]

@@ -14,8 +14,9 @@ left and right camera separately, and the chosen method fills their dilated boxe
 detected with the imported COCO ``yolov8n.pt`` from ``../shared`` (the embedded detector never saw
 a photo), synthetic frames with the embedded detector.  SLAM then runs on the filtered frames with
 the same RANSAC seeds, so each filtered run has a paired original run; the table reports the
-paired change of the headline ATE.  Monocular runs are repeated with ``--ignore-masked``
-("masked features": no ORB feature where the filter filled in, whose texture is made up).  RGB-D is left out of the privacy rows: the filter acts on
+paired change of the headline ATE.  Stereo and monocular runs are repeated with ``--ignore-masked``
+("masked features": no ORB feature where the filter filled in, whose texture is made up); for stereo
+that is what ``privslam run`` does on filtered frames.  RGB-D is left out of the privacy rows: the filter acts on
 images, and the depth map would still carry the removed objects' shapes.
 
 - KITTI seq1: 5 runs with RANSAC seeds 0-4 on the same 51 frames.
@@ -36,7 +37,7 @@ Command:
     python experiments/table4_ate.py --skip-kitti --skip-synth --jobs 2  # the loop worlds only
     python experiments/table4_ate.py --jobs 2 --resume runs.jsonl  # keep finished runs across restarts
     python experiments/table4_ate.py --filters edgeconnect,black     # other privacy variants (--filters '' : none)
-    python experiments/table4_ate.py --jobs 2 --stereo-zero-mean-sad  # stereo rows with SlamConfig.stereo_zero_mean_sad
+    python experiments/table4_ate.py --jobs 2 --no-stereo-zero-mean-sad  # stereo rows with ORB-SLAM's centre-pixel SAD
     python experiments/table4_ate.py --skip-kitti --skip-loops --synth-worlds 15-24 --modes stereo --jobs 2  # other worlds
     python experiments/table4_ate.py --skip-kitti --skip-loops --modes stereo --masked-modes stereo  # stereo, masked too
 
@@ -94,7 +95,7 @@ class Config:
     """Privacy filters (``privslam filter`` methods) whose filtered frames get their own rows."""
     filter_modes: tuple[str, ...] = ("stereo", "mono")
     """Synthetic modes run on filtered frames, of those in ``synth_modes`` (KITTI seq1 is mono)."""
-    masked_modes: tuple[str, ...] = ("mono",)
+    masked_modes: tuple[str, ...] = ("stereo", "mono")
     """Modes also run on filtered frames with ``--ignore-masked`` (no features on the filled regions)."""
     loop_worlds: tuple[int, ...] = (7, 11, 12, 13, 14)
     """Loop-route world seeds (``experiments/loop_closing.py``'s), run without and with loop closing."""
@@ -102,7 +103,7 @@ class Config:
     """Frames of a loop world (one lap and ~40 m again)."""
     loop_modes: tuple[str, ...] = ("stereo", "mono")
     """Modes run on the loop worlds."""
-    stereo_zero_mean_sad: bool = False
+    stereo_zero_mean_sad: bool = True
     """``SlamConfig.stereo_zero_mean_sad`` for the stereo runs."""
     out: str = "results/table4_ate.md"
     """Markdown output."""
@@ -521,9 +522,11 @@ def main() -> None:
     p.add_argument("--filters", default=None,
                    help="comma-separated privacy filters run as extra rows (default edgeconnect,telea; '' for none)")
     p.add_argument("--masked-modes", default=None,
-                   help="comma-separated modes also run on filtered frames with --ignore-masked (default mono; '' for none)")
-    p.add_argument("--stereo-zero-mean-sad", action="store_true",
-                   help="stereo runs with SlamConfig.stereo_zero_mean_sad (default off: ORB-SLAM's centre-pixel SAD)")
+                   help="comma-separated modes also run on filtered frames with --ignore-masked (default stereo,mono; "
+                        "'' for none)")
+    p.add_argument("--stereo-zero-mean-sad", action=argparse.BooleanOptionalAction, default=True,
+                   help="stereo runs with SlamConfig.stereo_zero_mean_sad (default on; --no-...: ORB-SLAM's centre-pixel "
+                        "SAD, the default before 2026-12-06)")
     p.add_argument("--out", default=None)
     p.add_argument("--jobs", type=int, default=1, help="runs in parallel processes (default 1)")
     p.add_argument("--resume", type=Path, default=None,
@@ -545,11 +548,11 @@ def main() -> None:
 
         cfg = dataclasses.replace(cfg, filters=tuple(f for f in a.filters.split(",") if f))
         if unknown := set(cfg.filters) - set(FILTER_METHODS):
-            raise SystemExit(f"unknown filter(s) {sorted(unknown)}; choose from {', '.join(FILTER_METHODS)}")
+            p.error(f"unknown filter(s) {sorted(unknown)}; choose from {', '.join(FILTER_METHODS)}")
     if a.masked_modes is not None:
         cfg = dataclasses.replace(cfg, masked_modes=tuple(m for m in a.masked_modes.split(",") if m))
         if unknown := set(cfg.masked_modes) - set(cfg.filter_modes):
-            raise SystemExit(f"--masked-modes {sorted(unknown)}: only {', '.join(cfg.filter_modes)} run on filtered frames")
+            p.error(f"--masked-modes {sorted(unknown)}: only {', '.join(cfg.filter_modes)} run on filtered frames")
     if a.out is not None:
         cfg = dataclasses.replace(cfg, out=a.out)
     if a.loop_worlds is not None:
@@ -558,15 +561,14 @@ def main() -> None:
         cfg = dataclasses.replace(cfg, loop_worlds=tuple(parse_seeds(a.loop_worlds)))
     if a.loop_frames is not None:
         cfg = dataclasses.replace(cfg, loop_frames=a.loop_frames)
-    if a.stereo_zero_mean_sad:
-        cfg = dataclasses.replace(cfg, stereo_zero_mean_sad=True)
+    cfg = dataclasses.replace(cfg, stereo_zero_mean_sad=a.stereo_zero_mean_sad)
     tasks = [] if a.skip_kitti else _kitti_tasks(cfg)
     tasks += [] if a.skip_synth else _synth_tasks(cfg, a.synth_dir)
     tasks += [] if a.skip_loops or not cfg.loop_worlds else _loop_tasks(cfg, a.synth_dir)
     if cfg.stereo_zero_mean_sad:
         tasks = [t._replace(zero_mean_sad=True) if t.mode == "stereo" else t for t in tasks]
     if not tasks:
-        raise SystemExit("nothing to run: KITTI needs ../shared, and --skip-synth and --skip-loops were given")
+        p.error("nothing to run: KITTI needs ../shared, and --skip-synth and --skip-loops were given")
     command = "python experiments/table4_ate.py " + " ".join(sys.argv[1:])
     print(write_markdown(_rows(_run_tasks(tasks, a.jobs, a.resume)), ROOT / cfg.out, command.strip()))
 

@@ -107,6 +107,15 @@ class PipelineConfig:
     edge: bool = False
     """Run the filtered frames' SLAM through the edge split (:func:`edge_slam_stage`): a gRPC server on
     loopback and the device client, as ``privslam serve`` and ``privslam client``."""
+    ignore_masked: bool | None = None
+    """SLAM on the filtered frames extracts no feature where the filter filled in (``privslam slam
+    --ignore-masked``); ``None``: on for stereo, off for mono, the better choice of each in Table 4 and
+    docs/slam.md ("Stereo disparities of coarse keypoints")."""
+
+    @property
+    def masked_features(self) -> bool:
+        """Whether the filtered frames' SLAM ignores the filled-in regions (``ignore_masked`` resolved)."""
+        return self.mode == "stereo" if self.ignore_masked is None else self.ignore_masked
 
 
 
@@ -388,6 +397,7 @@ def slam_stage(
     out: str | Path | None = None,
     total: int | None = None,
     progress: bool = False,
+    ignore: Iterable[np.ndarray] | None = None,
 ) -> SlamStage:
     """Stage 3: SLAM (:func:`privslam_jax.slam.system.run_slam`) on ``frames`` in memory.
 
@@ -402,6 +412,8 @@ def slam_stage(
         metrics from :func:`privslam_jax.slam.outputs.slam_metrics`).
       total: number of frames, for the progress bar and an early check of ``gt_poses``.
       progress: a progress bar.
+      ignore: per frame, an ``(H, W)`` bool map of the (left) image where no feature is extracted
+        (``run_slam``'s ``ignore``; e.g. the filter's masks), or ``None``.
     """
     from privslam_jax.slam.outputs import slam_metrics, write_outputs
     from privslam_jax.slam.system import SlamConfig, run_slam
@@ -418,7 +430,8 @@ def slam_stage(
         if a is not None and total is not None and len(a) < total:
             raise ValueError(f"{name} has {len(a)} entries for {total} frames")
     t0 = time.perf_counter()
-    result = run_slam(frames, camera, SlamConfig(mode=mode), timestamps=ts, progress=progress, total=total)
+    result = run_slam(frames, camera, SlamConfig(mode=mode), timestamps=ts, progress=progress, total=total,
+                      ignore=ignore)
     wall = time.perf_counter() - t0
     n = len(result.tracked)  # run_slam refuses an empty frame iterator
     if ts is None:
@@ -435,13 +448,15 @@ def slam_stage(
 
 def edge_slam_stage(filtered: Any, camera: Camera, mode: str = "mono", *, store: str | Path,
                     timestamps: ArrayLike | None = None, gt_poses: ArrayLike | None = None,
-                    out: str | Path | None = None) -> tuple[SlamStage, dict[str, Any]]:
+                    out: str | Path | None = None, ignore_masked: bool = False) -> tuple[SlamStage, dict[str, Any]]:
     """Stage 3 through the edge split: ``filtered`` (:class:`~privslam_jax.inpaint.sequence.FilteredFrames`)
     sent by the device client (:func:`privslam_jax.edge.client.run_session`) to an edge server
     started on loopback with its store in ``store``.  Returns the :class:`SlamStage` of the server's
     session (the same result :func:`slam_stage` gives on the same frames: SLAM is deterministic for a
     seed) and what crossed: bytes each way, pose latency, and the line cloud the client received
-    (``"line_cloud_ply"``).  The poses the client received are checked against the session's."""
+    (``"line_cloud_ply"``).  The poses the client received are checked against the session's.
+    ``ignore_masked``: the server extracts no feature where the filter filled in (the frames' masks
+    travel with them)."""
     from privslam_jax.edge.client import calibration_message, device_frames, run_session
     from privslam_jax.edge.server import start_server
     from privslam_jax.slam.outputs import slam_metrics, write_outputs
@@ -452,7 +467,7 @@ def edge_slam_stage(filtered: Any, camera: Camera, mode: str = "mono", *, store:
     server = start_server(store)
     try:
         t0 = time.perf_counter()
-        received = run_session(f"127.0.0.1:{server.port}", calibration_message("pipeline", camera, mode),
+        received = run_session(f"127.0.0.1:{server.port}", calibration_message("pipeline", camera, mode, ignore_masked=ignore_masked),
                                device_frames(filtered, ts, mode))
         wall = time.perf_counter() - t0
         result = server.servicer.result("pipeline")
@@ -600,13 +615,18 @@ def run_pipeline(config: PipelineConfig, out: str | Path, progress: bool = True)
             if label == "filtered" and config.edge:
                 slam[label], edge = edge_slam_stage(filtered, seq.camera, config.mode, store=out / "edge_store",
                                                     timestamps=seq.timestamps[:n], gt_poses=seq.poses,
-                                                    out=out / f"slam_{label}")
+                                                    out=out / f"slam_{label}", ignore_masked=config.masked_features)
                 write_atomic(out / "edge_lines_received.ply", edge.pop("line_cloud_ply"))
             else:
+                ignore = ((filtered.label_maps[i] > 0 for i in range(n))
+                          if label == "filtered" and config.masked_features else None)
                 slam[label] = slam_stage(frames, seq.camera, config.mode, timestamps=seq.timestamps[:n],
-                                         gt_poses=seq.poses, out=out / f"slam_{label}", total=n, progress=progress)
+                                         gt_poses=seq.poses, out=out / f"slam_{label}", total=n, progress=progress,
+                                         ignore=ignore)
             timings[f"slam_{label}"] = time.perf_counter() - t0
-            lines.append(slam[label].summary(label, ground_truth=gt_poses is not None))
+            lines.append(slam[label].summary(label, ground_truth=gt_poses is not None)
+                         + ("; no features on the filled-in regions" if label == "filtered" and config.masked_features
+                            else ""))
             if label == "filtered" and edge is not None:
                 lines.append(f"edge: the filtered frames went through a gRPC server on loopback ({out / 'edge_store'}): "
                              f"{edge['bytes_up_per_frame'] / 1e3:.1f} kB up and {edge['bytes_down_per_frame'] / 1e3:.2f} kB "

@@ -304,8 +304,9 @@ def test_every_train_script_is_covered():
     assert {s for s, _, _ in TRAIN_CASES} == {p.stem for p in (REPO / "train").glob("*.py")}
 
 
-@pytest.mark.parametrize("flag", [[], ["--stereo-zero-mean-sad"]])
-def test_slam_passes_its_stereo_options_to_the_config(flag, tmp_path, monkeypatch):
+@pytest.mark.parametrize(("flag", "zero_mean"), [([], True), (["--stereo-zero-mean-sad"], True),
+                                               (["--no-stereo-zero-mean-sad"], False)])
+def test_slam_passes_its_stereo_options_to_the_config(flag, zero_mean, tmp_path, monkeypatch):
     """``privslam slam``'s flags reach ``SlamConfig`` (the run itself is stubbed out after that)."""
     import privslam_jax.commands.slam as slam_cmd
     import privslam_jax.slam.system as system
@@ -327,5 +328,5 @@ def test_slam_passes_its_stereo_options_to_the_config(flag, tmp_path, monkeypatc
     with pytest.raises(Stop):
         privslam_main(["slam", str(tmp_path / "seq"), "--mode", "stereo", "--stereo-max-depth-baselines", "80",
                        *flag, "--out", str(tmp_path / "out")])
-    assert seen["cfg"].stereo_zero_mean_sad is bool(flag)
+    assert seen["cfg"].stereo_zero_mean_sad is zero_mean
     assert seen["cfg"].stereo_max_depth_baselines == 80.0 and seen["cfg"].mode == "stereo"

@@ -447,14 +447,20 @@ def test_pipeline_edge_stage_equals_the_in_process_stage(world, tmp_path):
     from privslam_jax.pipeline import edge_slam_stage, slam_stage
 
     seq, left, _, _ = world
-    filtered = FilteredFrames(left=np.stack(left), right=None, label_maps=np.zeros((N, *left[0].shape[:2]), np.uint16),
-                              instance_classes={})
+    labels = np.zeros((N, *left[0].shape[:2]), np.uint16)
+    labels[:, 60:140, 200:400] = 1  # a filled-in region, where the server extracts no feature (``ignore_masked``)
+    filtered = FilteredFrames(left=np.stack(left), right=None, label_maps=labels, instance_classes={1: 2})
     ts = np.arange(N) / 10.0
     gt = np.asarray(seq.trajectory.as_matrices(), np.float64)
-    edge, crossed = edge_slam_stage(filtered, seq.camera, "mono", store=tmp_path / "store", timestamps=ts, gt_poses=gt)
-    local = slam_stage((filtered.grey(i) for i in range(N)), seq.camera, "mono", timestamps=ts, gt_poses=gt)
+    edge, crossed = edge_slam_stage(filtered, seq.camera, "mono", store=tmp_path / "store", timestamps=ts, gt_poses=gt,
+                                    ignore_masked=True)
+    local = slam_stage((filtered.grey(i) for i in range(N)), seq.camera, "mono", timestamps=ts, gt_poses=gt,
+                       ignore=(labels[i] > 0 for i in range(N)))
     np.testing.assert_array_equal(np.asarray(edge.result.trajectory.as_matrices()),
                                   np.asarray(local.result.trajectory.as_matrices()))
     for key in ("tracked", "keyframes", "map_points", "ate_rmse_sim3", "rpe_trans"):
         assert edge.metrics[key] == local.metrics[key], key
+    plain = slam_stage((filtered.grey(i) for i in range(N)), seq.camera, "mono", timestamps=ts, gt_poses=gt)
+    assert not np.array_equal(np.asarray(plain.result.trajectory.as_matrices()),
+                              np.asarray(local.result.trajectory.as_matrices()))  # the masks changed the run
     assert crossed["frames"] == N and crossed["bytes_up_per_frame"] > 10_000 and crossed["line_cloud_ply"]

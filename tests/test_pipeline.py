@@ -357,3 +357,13 @@ def test_stereo_ground_truth_masks_filter_the_right_frames_too(tmp_path):
                                                            attack=False), tmp_path / "run", progress=False)
     m = report.slam["filtered"].metrics
     assert m["mode"] == "stereo" and m["frames"] == 10 and report.filter.frames.right is not None
+    # stereo on filtered frames ignores the filled-in regions by default: the run `privslam slam --mode
+    # stereo --ignore-masked` makes of the filtered folder the pipeline wrote
+    from privslam_jax.slam.outputs import load_sequence_frames, masked_regions
+
+    assert "no features on the filled-in regions" in report.summary
+    seq, it, n = load_sequence_frames(tmp_path / "run" / "filtered" / "sequences" / "synth", "stereo")
+    again = pipeline.slam_stage(it, seq.camera, "stereo", timestamps=seq.timestamps[:n], total=n,
+                                ignore=masked_regions(seq, n))
+    np.testing.assert_array_equal(again.result.trajectory.as_matrices(),
+                                  report.slam["filtered"].result.trajectory.as_matrices())

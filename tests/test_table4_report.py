@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -104,11 +105,16 @@ def test_counts_of_lost_frames_relocalisations_maps_and_loops(tmp_path):
     assert len(every) == 9 and sum(", loop closing |" in ln for ln in every) == 4
 
 
-def test_masked_modes_outside_the_filtered_modes_are_refused():
-    """``--masked-modes rgbd`` names a mode that never runs on filtered frames: exit before any run."""
+@pytest.mark.parametrize(("args", "message"), [
+    (["--masked-modes", "stereo,rgbd"], "--masked-modes ['rgbd']: only stereo, mono run on filtered frames"),
+    (["--filters", "telea,sharpen"], "unknown filter(s) ['sharpen']; choose from"),
+])
+def test_bad_options_are_refused_as_usage_errors(args, message):
+    """``--masked-modes rgbd`` names a mode that never runs on filtered frames, ``--filters sharpen`` no
+    filter: argparse's usage error (exit 2) before any rendering."""
     import subprocess
 
-    r = subprocess.run([sys.executable, str(ROOT / "experiments/table4_ate.py"), "--skip-kitti", "--masked-modes",
-                        "stereo,rgbd"], capture_output=True, text=True, timeout=120)
-    assert r.returncode != 0 and "--masked-modes ['rgbd']: only stereo, mono run on filtered frames" in r.stderr
+    r = subprocess.run([sys.executable, str(ROOT / "experiments/table4_ate.py"), "--skip-kitti", *args],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and message in r.stderr, (r.returncode, r.stderr[-500:])
     assert "rendering" not in r.stdout

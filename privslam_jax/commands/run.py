@@ -44,6 +44,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--inpainter", default=None, metavar="PATH",
                    help="EdgeConnect checkpoint for --filter edgeconnect or tradeoff (default: the embedded inpainter)")
     p.add_argument("--mode", choices=("mono", "stereo"), default=d.mode, help=f"SLAM input (default {d.mode})")
+    p.add_argument("--ignore-masked", action=argparse.BooleanOptionalAction, default=None,
+                   help="SLAM on the filtered frames extracts no features where the filter filled in (default: on for "
+                        "stereo, off for mono, the better choice of each in Table 4; docs/slam.md)")
     p.add_argument("--lift-seed", type=int, default=None, help="fixed lift seed (experiments only; default: OS entropy)")
     p.add_argument("--no-slam", action="store_true", help="stop after the privacy filter")
     p.add_argument("--edge", action="store_true",
@@ -64,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         sequence=None if args.sequence is None else str(args.sequence), frames=args.frames, seed=args.seed,
         filter_method=args.filter_method, masks=args.masks, detector=args.detector, conf=args.conf, tta=args.tta,
         propagate=args.propagate, inpainter=args.inpainter, mode=args.mode, lift_seed=args.lift_seed,
-        slam=not args.no_slam, attack=not args.no_slam, edge=args.edge,
+        slam=not args.no_slam, attack=not args.no_slam, edge=args.edge, ignore_masked=args.ignore_masked,
     )
     report = run_pipeline(config, args.out, progress=not args.quiet)
     print(report.summary)

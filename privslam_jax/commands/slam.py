@@ -56,9 +56,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--stereo-max-depth-baselines", type=positive_or_inf, default=None, metavar="B",
                    help="stereo: keypoints B baselines away or farther are used as monocular ones (default inf: "
                         "every stereo depth, as ORB-SLAM; docs/slam.md, 'Far stereo points')")
-    p.add_argument("--stereo-zero-mean-sad", action="store_true",
-                   help="stereo: refine stereo matches by SAD of zero-mean patches instead of ORB-SLAM's patches minus "
-                        "their centre pixel (docs/slam.md, 'Stereo disparities of coarse keypoints')")
+    p.add_argument("--stereo-zero-mean-sad", action=argparse.BooleanOptionalAction, default=True,
+                   help="stereo: refine stereo matches by SAD of zero-mean patches (default), or with --no-... by "
+                        "ORB-SLAM's patches minus their centre pixel (docs/slam.md, 'Stereo disparities of coarse "
+                        "keypoints')")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)

@@ -120,14 +120,15 @@ class SlamConfig:
     share of the path: 0.056 → 0.038 %, held-out worlds 0.079 → 0.035 %) but raises it on
     privacy-filtered frames (Table 4's EdgeConnect and Telea rows, median SE(3) ATE 0.211 → 0.426 m and
     0.267 → 0.427 m), so it is not the default; docs/slam.md, "Far stereo points"."""
-    stereo_zero_mean_sad: bool = False
-    """Stereo: refine each match by SAD of zero-mean patches instead of ORB-SLAM's patches minus their
-    centre pixel, which gives the keypoints of pyramid levels ≥ 1 disparities a few hundredths of a
-    pixel short (``frontend._sad_refine``); ``False`` (default) is ORB-SLAM's.  On Table 4's stereo
-    rows it was better in 16 of 25 runs but not on EdgeConnect-filtered frames; on ten held-out
-    worlds in 22 of 30, filtered frames included, but with the only two runs that lost frames (worlds
-    18 and 22 after Telea); on world 22 after Telea it loses tracking where the filter blanks most of
-    the frame in 3 of 8 RANSAC seeds, ORB-SLAM's in none (docs/slam.md, "Stereo disparities of coarse
+    stereo_zero_mean_sad: bool = True
+    """Stereo: refine each match by SAD of zero-mean patches (default) instead of ORB-SLAM's patches
+    minus their centre pixel, which gives the keypoints of pyramid levels ≥ 1 disparities a few
+    hundredths of a pixel short (``frontend._sad_refine``); ``False`` is ORB-SLAM's, the default before
+    2026-12-06.  Zero mean is better on 13 of 15 unfiltered worlds without loops, all ten unfiltered
+    loop-world runs with loop closing (≤ 0.1 % of the path on every loop world), and, with masked
+    features, on 12 of 15 privacy-filtered runs; without masked features it lost tracking on one
+    filtered world where the filter's fill covers most of the frame, so filtered stereo frames are
+    run with masked features (``privslam run``, Table 4; docs/slam.md, "Stereo disparities of coarse
     keypoints")."""
     rgbd_close_depth: float = 20.0
     """RGB-D: close-point depth threshold, metres."""
