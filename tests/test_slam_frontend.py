@@ -324,10 +324,13 @@ def test_far_stereo_keypoints_can_be_kept_monocular():
     right = cv2.warpAffine(left, np.float32([[1, 0, -12.4], [0, 1, 0]]), (400, 160), flags=cv2.INTER_CUBIC,
                            borderMode=cv2.BORDER_REFLECT)
     cam = Camera(fx=400.0, fy=400.0, cx=199.5, cy=79.5, width=400, height=160, baseline=0.5)
-    ref = stereo_depths(left, right, extract_orb(left), extract_orb(right), cam.fx, 0.5)
+    ref = stereo_depths(left, right, extract_orb(left), extract_orb(right), cam.fx, 0.5, zero_mean=True)
     assert np.isfinite(ref).sum() > 50 and np.nanmax(ref) < 40 * 0.5 <= np.nanmax(ref) * 1.3
     default, _ = Slam(cam, SlamConfig(mode="stereo")).features(0, left, right)
-    np.testing.assert_array_equal(default.feats.depth, ref)
+    np.testing.assert_array_equal(default.feats.depth, ref)  # zero-mean SAD by default
+    centre, _ = Slam(cam, SlamConfig(mode="stereo", stereo_zero_mean_sad=False)).features(0, left, right)
+    np.testing.assert_array_equal(centre.feats.depth, stereo_depths(left, right, extract_orb(left), extract_orb(right),
+                                                                    cam.fx, 0.5, zero_mean=False))
     for limit in (math.inf, 40.0, 32.0, 20.0):
         frame, _ = Slam(cam, SlamConfig(mode="stereo", stereo_max_depth_baselines=limit)).features(0, left, right)
         np.testing.assert_array_equal(frame.feats.depth, np.where(ref >= limit * 0.5, np.nan, ref))

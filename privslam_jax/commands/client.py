@@ -42,7 +42,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--token-file", type=_token_file, default=None, help="file whose first token is this client's bearer token")
     p.add_argument("--ca", type=Path, default=None, help="CA certificate (PEM) of the server's TLS certificate")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="RANSAC seed of the server's SLAM (default 0)")
-    p.add_argument("--ignore-masked", action="store_true", help="the server extracts no feature where the filter filled in")
+    p.add_argument("--ignore-masked", action=argparse.BooleanOptionalAction, default=None,
+                   help="the server extracts no feature where the filter filled in (default: on for stereo, off for "
+                        "mono and rgbd, as privslam run)")
     p.add_argument("--max-frames", type=positive_int, default=None, help="send only the first N frames")
     p.add_argument("--no-map", action="store_true", help="do not ask for the map")
     p.add_argument("--deadline", type=positive_float, default=3600.0, help="deadline of each connection, s (default 3600)")
@@ -110,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     depths = [seq[i].depth for i in range(n)] if args.mode == "rgbd" else None
     frames = device_frames(filtered, seq.timestamps, args.mode, depths)[:n]
     session = args.session or seq.name
-    cal = calibration_message(session, seq.camera, args.mode, seed=args.seed, ignore_masked=args.ignore_masked)
+    cal = calibration_message(session, seq.camera, args.mode, seed=args.seed, ignore_masked=args.mode == "stereo" if args.ignore_masked is None else args.ignore_masked)
     done = [0]
 
     def progress(pose) -> None:
