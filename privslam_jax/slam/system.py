@@ -124,12 +124,13 @@ class SlamConfig:
     """Stereo: refine each match by SAD of zero-mean patches (default) instead of ORB-SLAM's patches
     minus their centre pixel, which gives the keypoints of pyramid levels ≥ 1 disparities a few
     hundredths of a pixel short (``frontend._sad_refine``); ``False`` is ORB-SLAM's, the default before
-    2026-12-06.  Zero mean is better on 13 of 15 unfiltered worlds without loops, all ten unfiltered
-    loop-world runs with loop closing (≤ 0.1 % of the path on every loop world), and, with masked
-    features, on 12 of 15 privacy-filtered runs; without masked features it lost tracking on one
-    filtered world where the filter's fill covers most of the frame, so filtered stereo frames are
-    run with masked features (``privslam run``, Table 4; docs/slam.md, "Stereo disparities of coarse
-    keypoints")."""
+    2026-12-06.  Zero mean is more accurate on 13 of 15 unfiltered worlds without loops, reaches
+    ≤ 0.1 % of the path with loop closing on all ten loop worlds measured (``loop_closing.py``, worlds
+    7, 11-14 and 15-19), and, with masked features, is more accurate than the old default on 18 of 25
+    privacy-filtered runs (Table 4, worlds 0-4 and 15-24); without masked features it lost tracking
+    on one filtered world where the filter's fill covers most of the frame, so filtered stereo frames
+    are run with masked features (``privslam run``, Table 4; docs/slam.md, "Stereo disparities of
+    coarse keypoints")."""
     rgbd_close_depth: float = 20.0
     """RGB-D: close-point depth threshold, metres."""
     min_init_points: int = 300
