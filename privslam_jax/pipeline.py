@@ -467,7 +467,8 @@ def edge_slam_stage(filtered: Any, camera: Camera, mode: str = "mono", *, store:
     server = start_server(store)
     try:
         t0 = time.perf_counter()
-        received = run_session(f"127.0.0.1:{server.port}", calibration_message("pipeline", camera, mode, ignore_masked=ignore_masked),
+        received = run_session(f"127.0.0.1:{server.port}",
+                               calibration_message("pipeline", camera, mode, ignore_masked=ignore_masked),
                                device_frames(filtered, ts, mode))
         wall = time.perf_counter() - t0
         result = server.servicer.result("pipeline")

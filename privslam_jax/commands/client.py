@@ -112,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
     depths = [seq[i].depth for i in range(n)] if args.mode == "rgbd" else None
     frames = device_frames(filtered, seq.timestamps, args.mode, depths)[:n]
     session = args.session or seq.name
-    cal = calibration_message(session, seq.camera, args.mode, seed=args.seed, ignore_masked=args.mode == "stereo" if args.ignore_masked is None else args.ignore_masked)
+    ignore_masked = args.mode == "stereo" if args.ignore_masked is None else args.ignore_masked
+    cal = calibration_message(session, seq.camera, args.mode, seed=args.seed, ignore_masked=ignore_masked)
     done = [0]
 
     def progress(pose) -> None:
