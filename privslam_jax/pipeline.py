@@ -115,7 +115,13 @@ class PipelineConfig:
     @property
     def masked_features(self) -> bool:
         """Whether the filtered frames' SLAM ignores the filled-in regions (``ignore_masked`` resolved)."""
-        return self.mode == "stereo" if self.ignore_masked is None else self.ignore_masked
+        return masked_features_by_default(self.mode) if self.ignore_masked is None else self.ignore_masked
+
+
+def masked_features_by_default(mode: str) -> bool:
+    """Whether SLAM on filtered frames of ``mode`` keeps its features off the filled-in regions unless
+    told otherwise: stereo yes, mono and RGB-D no (Table 4; docs/slam.md)."""
+    return mode == "stereo"
 
 
 
@@ -130,6 +136,8 @@ def _check_config(config: PipelineConfig) -> None:
         raise ValueError("attack needs slam (the attacked map is the SLAM map)")
     if config.edge and not config.slam:
         raise ValueError("edge needs slam (the edge server runs the SLAM)")
+    if config.ignore_masked not in (None, True, False):
+        raise ValueError(f"ignore_masked must be True, False or None, got {config.ignore_masked!r}")
 
 
 def _fmt(m: dict[str, Any], key: str) -> str:

@@ -200,6 +200,8 @@ def test_stages_refuse_bad_input(gt_run):
         pipeline.filter_stage(report.sequence, pipeline.PipelineConfig(masks="bogus"))
     with pytest.raises(ValueError, match="attack needs slam"):
         pipeline.run_pipeline(pipeline.PipelineConfig(slam=False), "unused", progress=False)
+    assert [pipeline.PipelineConfig(mode=m).masked_features for m in ("mono", "stereo")] == [False, True]
+    assert pipeline.PipelineConfig(mode="stereo", ignore_masked=False).masked_features is False
 
 
 def _synthetic_gt(frames):

@@ -100,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.data.trajectory_io import write_tum_matrices
     from privslam_jax.edge.client import calibration_message, device_frames, run_session
     from privslam_jax.inpaint.sequence import filter_sequence_in_memory
+    from privslam_jax.pipeline import masked_features_by_default
     from privslam_jax.slam.outputs import write_frame_status
 
     token = None if args.token_file is None else _first_token(args.token_file)
@@ -112,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     depths = [seq[i].depth for i in range(n)] if args.mode == "rgbd" else None
     frames = device_frames(filtered, seq.timestamps, args.mode, depths)[:n]
     session = args.session or seq.name
-    ignore_masked = args.mode == "stereo" if args.ignore_masked is None else args.ignore_masked
+    ignore_masked = masked_features_by_default(args.mode) if args.ignore_masked is None else args.ignore_masked
     cal = calibration_message(session, seq.camera, args.mode, seed=args.seed, ignore_masked=ignore_masked)
     done = [0]
 
