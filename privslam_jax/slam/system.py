@@ -30,14 +30,15 @@ synchronously right after a keyframe is chosen, so results do not depend on thre
 * **Output** — like ORB-SLAM's ``SaveTrajectory``, each frame's pose is stored relative to its
   reference keyframe and composed with that keyframe's final (bundle-adjusted) pose.
 
-Determinism: tracking and mapping run in one thread (:func:`run_slam` extracts the next frame's
-features in a second one; they do not depend on the map), OpenCV's fixed-seed RANSAC, and
-correspondence order shuffled by ``numpy.random.default_rng(seed + …)``: the same input and seed
-give bit-identical trajectories.
+Determinism: tracking and mapping run in one thread (:func:`run_slam` extracts the next
+:data:`PREFETCH_FRAMES` frames' features in a second one; they do not depend on the map), OpenCV's
+fixed-seed RANSAC, and correspondence order shuffled by ``numpy.random.default_rng(seed + …)``: the
+same input and seed give bit-identical trajectories.
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import time
@@ -669,6 +670,13 @@ class Slam:
         )
 
 
+PREFETCH_FRAMES = 3
+"""Frames :func:`run_slam` reads and extracts ahead of tracking.  Local mapping after a keyframe takes
+about as long as five extractions on KITTI, so a worker that stays several frames ahead keeps the
+second core busy while the tracking thread maps, and the frames after a keyframe find their
+features ready."""
+
+
 def run_slam(
     frames: Iterable[Any],
     camera: Camera,
@@ -691,36 +699,46 @@ def run_slam(
     masks = iter(ignore) if ignore is not None else None
     end = object()
 
+    failed = False
+
     def features(k: int):
-        """Frame ``k``'s features (worker thread): read the frame and its mask, extract."""
-        item = next(items, end)
-        if item is end:
+        """Frame ``k``'s features (worker thread): read the frame and its mask, extract.  After a frame
+        that could not be read or extracted, nothing more is read."""
+        nonlocal failed
+        if failed:
             return end
-        mask = next(masks, False) if masks is not None else None
-        if mask is False:
-            raise ValueError(f"ignore has fewer masks than frames (none for frame {k})")
-        if config.mode == "mono":
-            return slam.features(k, item, ignore=mask)
-        first, second = item
-        if config.mode == "stereo":
-            return slam.features(k, first, right=second, ignore=mask)
-        return slam.features(k, first, depth=second, ignore=mask)
+        try:
+            item = next(items, end)
+            if item is end:
+                return end
+            mask = next(masks, False) if masks is not None else None
+            if mask is False:
+                raise ValueError(f"ignore has fewer masks than frames (none for frame {k})")
+            if config.mode == "mono":
+                return slam.features(k, item, ignore=mask)
+            first, second = item
+            if config.mode == "stereo":
+                return slam.features(k, first, right=second, ignore=mask)
+            return slam.features(k, first, depth=second, ignore=mask)
+        except BaseException:
+            failed = True
+            raise
 
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=total, desc=f"slam ({config.mode})", unit="frame")
-    # One worker reads and extracts frame k + 1 while this thread tracks and maps frame k: extraction
-    # does not depend on the map, so the results are those of the plain loop (only the order of work
-    # on the two cores changes).
+    # One worker reads and extracts the next PREFETCH_FRAMES frames, in order, while this thread tracks
+    # and maps frame k: extraction does not depend on the map, so the results are those of the plain
+    # loop (only the order of work on the two cores changes).
     try:
         with ThreadPoolExecutor(1, thread_name_prefix="slam-features") as pool:
-            pending = pool.submit(features, 0)
-            k = 0
-            while (out := pending.result()) is not end:
+            pending = collections.deque(pool.submit(features, k) for k in range(PREFETCH_FRAMES))
+            k = PREFETCH_FRAMES
+            while (out := pending.popleft().result()) is not end:
+                pending.append(pool.submit(features, k))
                 k += 1
-                pending = pool.submit(features, k)
                 slam.track_frame(*out)
                 if bar is not None:
                     bar.update()
