@@ -1,6 +1,6 @@
 """Stereo and RGB-D SLAM on a short rendered street sequence: every frame tracked at metric scale
-against the renderer's ground truth (the depth modes have no scale freedom), and the virtual-stereo
-``u_r`` of keypoints with depth."""
+against the renderer's ground truth (the depth modes have no scale freedom), ``run_slam``'s read-ahead
+against the plain ``Slam.track`` loop, and the virtual-stereo ``u_r`` of keypoints with depth."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from privslam_jax.data.synthetic import SynthConfig, make_sequence
 from privslam_jax.metrics.trajectory import ate
 from privslam_jax.slam.mapping import stereo_u_right
-from privslam_jax.slam.system import SlamConfig, run_slam
+from privslam_jax.slam.system import PREFETCH_FRAMES, Slam, SlamConfig, run_slam
 from privslam_jax.types import Camera
 
 N_FRAMES = 12
@@ -52,6 +52,40 @@ def test_depth_modes_track_every_frame_at_metric_scale(synth, mode):
         # no alignment at all: the world frame is the first camera in both, and depth fixes the scale
         drifts.append(np.linalg.norm(T[:, :3, 3] - gt[:, :3, 3], axis=1).max() / path)
     assert np.median(errs) < 0.01 and np.median(drifts) < 0.02, (errs, drifts)
+
+
+
+def test_run_slam_equals_the_plain_track_loop_and_reads_no_further_than_a_bad_frame(synth):
+    """``run_slam`` reads and extracts ``PREFETCH_FRAMES`` frames ahead in a worker thread while it tracks
+    and maps: its result must be that of calling ``Slam.track`` frame by frame, bit for bit (stereo,
+    without ``../shared``; ``tests/test_slam_system.py`` checks KITTI mono), and after a frame it cannot
+    read it reads nothing more from the stream."""
+    import cv2
+
+    assert PREFETCH_FRAMES > 1
+    seq, frames = synth
+    items = [(f.image, f.image_right) for f in frames]
+    config = SlamConfig(mode="stereo")
+    res = run_slam(items, seq.camera, config, timestamps=seq.timestamps)
+    cv2.setRNGSeed(config.seed)  # as run_slam does
+    slam = Slam(seq.camera, config)
+    for left, right in items:
+        slam.track(left, right=right)
+    plain = slam.result(seq.timestamps)
+    np.testing.assert_array_equal(np.asarray(res.trajectory.poses.wxyz_xyz), np.asarray(plain.trajectory.poses.wxyz_xyz))
+    np.testing.assert_array_equal(np.asarray(res.map.xyz), np.asarray(plain.map.xyz))
+    np.testing.assert_array_equal(res.keyframe_indices, plain.keyframe_indices)
+    assert res.events == plain.events and len(res.keyframe_indices) > 1
+    read = []
+
+    def stream():
+        for i, (left, right) in enumerate(items):
+            read.append(i)
+            yield (left, right) if i != 3 else (left[:50], right)
+
+    with pytest.raises(ValueError, match="frame 3"):
+        run_slam(stream(), seq.camera, config)
+    assert read == [0, 1, 2, 3]
 
 
 def test_stereo_u_right_is_the_virtual_right_pixel():
