@@ -3,6 +3,7 @@
 Command::
 
     python train/real_labels.py --synthetic DIR/SPLIT --out DIR [--window 3] [--repeat 3] [--paste-copies 0]
+        [--paste-synthetic-seeds 5001-5080 --paste-synthetic-frames 8 --paste-match-light 1]
 
 ``train/data/real_boxes.json`` holds boxes the developers drew by eye on keyframes of the real
 frames that ``../shared`` allows training on (``data/real/kitti_raw_a`` and the KITTI odometry
@@ -13,8 +14,14 @@ frames that ``../shared`` allows training on (``data/real/kitti_raw_a`` and the 
 the YOLO split ``OUT/{images,labels}/real``. With ``--paste-copies N``, the split
 ``OUT/{images,labels}/real_paste`` holds ``N`` copies of each real frame into which 1 to
 ``--paste-max`` objects cut from the keyframes are pasted on the ground plane
-(:mod:`privslam_jax.detect.copy_paste`; people and riders are drawn ``--paste-person-weight``
-times as often as other objects, cars are not pasted: they are plenty). ``OUT/{images,labels}/mix``
+(:mod:`privslam_jax.detect.copy_paste`; mattes from ``kitti_raw_a``'s Mask R-CNN masks, or soft
+ellipses with ``--paste-real-matte ellipse``, which a licence-clean detector needs: the masks are a
+third-party model's output; people and riders are drawn ``--paste-person-weight``
+times as often as other objects, cars are not pasted: they are plenty). ``--paste-synthetic-seeds``
+adds to that bank the people, bicycles and motorcycles of synthetic worlds rendered at the real
+frames' size (1242 × 375, KITTI's camera height and focal length, object density 2; frames 0, 12,
+… of each seed), cut by their instance masks and photometrically randomised
+(:func:`privslam_jax.detect.copy_paste.synthetic_instances`). ``OUT/{images,labels}/mix``
 then links every frame of the synthetic split, ``--repeat`` copies of each real frame and the
 pasted copies. Train with ``train/detector.py --data OUT --split mix``.
 """
@@ -39,7 +46,9 @@ def main(argv: list[str] | None = None) -> int:
     from privslam_jax.argtypes import nonnegative_int, positive_int
     from privslam_jax.data.images import read_rgb8, write_image_file
     from privslam_jax.data.yolo import cxcywhn_to_xyxy, link_mixed_split, read_yolo_labels, write_yolo_labels
-    from privslam_jax.detect.copy_paste import cut_instance, object_groups, paste_instances
+    from privslam_jax.data.synthetic import SynthConfig, make_sequence, parse_seeds
+    from privslam_jax.detect.copy_paste import PasteConfig, cut_instance, object_groups, paste_instances, synthetic_instances
+    from privslam_jax.detect.domain_rand import DomainRandConfig
     from privslam_jax.detect.temporal import box_flow, dense_flow, flow_grey
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -51,8 +60,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--paste-copies", type=nonnegative_int, default=0, help="copy-paste copies per real frame")
     p.add_argument("--paste-max", type=positive_int, default=3, help="objects pasted into one copy, at most")
     p.add_argument("--paste-person-weight", type=float, default=4.0, help="sampling weight of people and riders")
+    p.add_argument("--paste-real-matte", choices=("maskrcnn", "ellipse"), default="maskrcnn",
+                   help="matte of the real cut objects: kitti_raw_a's Mask R-CNN masks where they exist (a third-party "
+                        "model's output) or always the soft ellipse (licence-clean)")
+    p.add_argument("--paste-synthetic-seeds", default="", help="synthetic worlds whose objects join the paste bank, e.g. 5001-5080")
+    p.add_argument("--paste-synthetic-frames", type=positive_int, default=8, help="frames cut per synthetic world")
+    p.add_argument("--paste-match-light", type=float, default=0.0, help="brightness match of pasted patches, 0..1")
+    p.add_argument("--paste-retexture", type=float, default=0.0,
+                   help="probability that a synthetic object takes a real frame's texture under its shading")
     p.add_argument("--seed", type=nonnegative_int, default=0)
     a = p.parse_args(argv)
+    for name in ("paste_match_light", "paste_retexture"):
+        if not 0.0 <= getattr(a, name) <= 1.0:
+            p.error(f"--{name.replace('_', '-')} must be in [0, 1], got {getattr(a, name)}")
+    try:
+        synth_seeds = parse_seeds(a.paste_synthetic_seeds) if a.paste_synthetic_seeds else []
+    except ValueError as err:
+        p.error(f"--paste-synthetic-seeds: {err}")
     shared = shared_dir()
     if shared is None:
         raise SystemExit("needs ../shared (the real training frames); set PRIVSLAM_SHARED")
@@ -102,15 +126,28 @@ def main(argv: list[str] | None = None) -> int:
             key = shared / rel
             b0 = np.asarray(kb, np.float64).reshape(-1, 5)
             mask_file = key.parent.parent / "maskrcnn_masks" / key.name
-            matte = cv2.imread(str(mask_file), cv2.IMREAD_GRAYSCALE) if mask_file.is_file() else None
+            use = a.paste_real_matte == "maskrcnn" and mask_file.is_file()
+            matte = cv2.imread(str(mask_file), cv2.IMREAD_GRAYSCALE) if use else None
             img = read_rgb8(key)
             for g in object_groups(b0[:, :4], b0[:, 4].astype(np.int32), skip=(2,)):
                 inst = cut_instance(img, b0[g, :4], b0[g, 4].astype(np.int32), matte)
                 if inst is not None:
                     bank.append(inst)
                     weight.append(a.paste_person_weight if 0 in inst.class_ids else 1.0)
-        prob = np.asarray(weight) / np.sum(weight)
         rng = np.random.default_rng(a.seed)
+        n_real = len(bank)
+        look = DomainRandConfig(grey=0.0, vignette=0.0)
+        textures = [read_rgb8(f) for f in sorted(img_dir.glob("*.png"))] if a.paste_retexture > 0 else None
+        for seed in synth_seeds:
+            seq = make_sequence(SynthConfig(seed=seed, width=1242, height=375, num_frames=12 * a.paste_synthetic_frames,
+                                            object_density=2.0))
+            for i in range(0, len(seq), 12):
+                for inst in synthetic_instances(seq[i], rng, photometric=look, textures=textures,
+                                                retexture=a.paste_retexture):
+                    bank.append(inst)
+                    weight.append(a.paste_person_weight if 0 in inst.class_ids else 1.0)
+        prob = np.asarray(weight) / np.sum(weight)
+        paste_cfg = PasteConfig(match_light=a.paste_match_light)
         pimg, plab = a.out / "images" / "real_paste", a.out / "labels" / "real_paste"
         for f in sorted(img_dir.glob("*.png")):
             img = read_rgb8(f)
@@ -119,11 +156,12 @@ def main(argv: list[str] | None = None) -> int:
             xyxy = cxcywhn_to_xyxy(cxcywh, w, h)
             for k in range(a.paste_copies):
                 picks = [bank[i] for i in rng.choice(len(bank), int(rng.integers(1, a.paste_max + 1)), p=prob)]
-                out, pb, pc = paste_instances(img, xyxy, cls, picks, rng)
+                out, pb, pc = paste_instances(img, xyxy, cls, picks, rng, paste_cfg)
                 write_image_file(pimg / f"p{k}_{f.name}", cv2.cvtColor(out, cv2.COLOR_RGB2BGR))
                 write_yolo_labels(plab / f"p{k}_{f.stem}.txt", pc, np.clip(pb, 0, [w, h, w, h]), w, h)
         print(f"wrote {a.paste_copies} pasted copies of each real frame from {len(bank)} cut objects "
-              f"({sum(0 in i.class_ids for i in bank)} with a person) to {pimg}")
+              f"({n_real} real, {len(bank) - n_real} synthetic; {sum(0 in i.class_ids for i in bank)} with a person) "
+              f"to {pimg}")
         sources.append((a.out / "real_paste", 1))
     n_mix = link_mixed_split(a.out, "mix", sources)
     print(f"wrote {a.out}/images/mix ({n_mix} images)")

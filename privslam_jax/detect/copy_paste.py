@@ -21,6 +21,16 @@ places and sizes a street camera would see it.
   longer be visible enough to keep its label). Pasted objects are drawn on top, so their labels
   are exact: the box of each member is its drawn box mapped into the new frame.
 
+* **Synthetic objects** (:func:`synthetic_instances`): the allowed real frames hold about five
+  different people, so the bank also takes people, bicycles and motorcycles rendered by the
+  synthetic world (:mod:`privslam_jax.data.synthetic`) at the real camera's size, cut by their
+  exact instance masks and photometrically randomised
+  (:func:`~privslam_jax.detect.domain_rand.randomize_photometric`). Pasted into real frames they
+  teach the shape of a person against real clutter, which neither source gives alone (synthetic
+  frames have no real clutter, real frames almost no people). ``PasteConfig.match_light`` scales
+  each pasted patch towards the brightness of the frame region it covers, since renders are lit
+  evenly and real streets are not.
+
 Everything is numpy + OpenCV on ``uint8`` RGB frames with ``xyxy`` pixel boxes; randomness comes
 from a ``numpy`` generator, so a training set is reproducible.
 """
@@ -28,12 +38,16 @@ from a ``numpy`` generator, so a training set is reproducible.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from jaxtyping import Float, Int, Real, UInt8
 
-__all__ = ["Instance", "PasteConfig", "cut_instance", "object_groups", "paste_instances"]
+if TYPE_CHECKING:
+    from privslam_jax.detect.domain_rand import DomainRandConfig
+
+__all__ = ["Instance", "PasteConfig", "cut_instance", "object_groups", "paste_instances", "synthetic_instances"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +66,8 @@ class Instance:
     """Row of the patch's bottom edge in the source frame (where it stands on the ground)."""
     source_height: int
     """Height of the source frame in pixels."""
+    horizon: float | None = None
+    """The source frame's horizon row as a fraction of its height (``None``: ``PasteConfig.horizon``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,6 +84,10 @@ class PasteConfig:
     """Largest share of an existing box that a pasted matte may cover."""
     tries: int = 20
     """Placement draws per instance before it is skipped."""
+    match_light: float = 0.0
+    """Strength in ``[0, 1]`` of the brightness match: the patch is multiplied by
+    ``clip(m_bg / m_obj, 1/3, 3) ** (match_light · U(0.5, 1))``, with ``m_bg`` the mean of the frame
+    region it covers and ``m_obj`` the alpha-weighted mean of the object (0 = paste as cut)."""
 
 
 def object_groups(boxes: Real[np.ndarray, "n 4"], class_ids: Int[np.ndarray, " n"],
@@ -173,7 +193,7 @@ def paste_instances(image: UInt8[np.ndarray, "H W 3"], boxes: Float[np.ndarray, 
     y_h = cfg.horizon * h
     for inst in instances:
         r = h / inst.source_height  # focal length ratio of the two frames (same field of view)
-        src = inst.bottom_row - cfg.horizon * inst.source_height
+        src = inst.bottom_row - (cfg.horizon if inst.horizon is None else inst.horizon) * inst.source_height
         if src <= 1:
             continue
         ph, pw = inst.alpha.shape
@@ -197,6 +217,10 @@ def paste_instances(image: UInt8[np.ndarray, "H W 3"], boxes: Float[np.ndarray, 
                 rgb = np.repeat(cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)[..., None], 3, -1)
             region = out[y0:y0 + th, x0:x0 + tw].astype(np.float32)
             a = alpha[..., None]
+            if cfg.match_light > 0:
+                m_obj = float((a * rgb).sum() / max(3 * a.sum(), 1e-6))
+                gain = np.clip(region.mean() / max(m_obj, 1.0), 1 / 3, 3) ** (cfg.match_light * rng.uniform(0.5, 1.0))
+                rgb = np.clip(rgb * gain, 0, 255)
             out[y0:y0 + th, x0:x0 + tw] = np.clip(np.rint(a * rgb + (1 - a) * region), 0, 255).astype(np.uint8)
             kb = inst.boxes * [tw / pw, th / ph, tw / pw, th / ph]
             if flip:
@@ -205,3 +229,80 @@ def paste_instances(image: UInt8[np.ndarray, "H W 3"], boxes: Float[np.ndarray, 
             all_cls.append(inst.class_ids)
             break
     return out, np.concatenate(all_boxes), np.concatenate(all_cls)
+
+
+def synthetic_instances(frame, rng: np.random.Generator, classes: tuple[int, ...] = (0, 1, 3),
+                        min_height: int = 24, max_other: float = 0.05, feather: float = 0.7,
+                        min_person_aspect: float = 2.0, photometric: "DomainRandConfig | None" = None,
+                        textures: "list[np.ndarray] | None" = None, retexture: float = 0.0) -> list[Instance]:
+    """Cut the people (and bicycles, motorcycles: ``classes``) of a rendered synthetic frame.
+
+    ``frame`` is a :class:`~privslam_jax.data.synthetic.SynthFrame`. An object is cut when its box
+    (tight around its visible pixels) is at least ``min_height`` px tall, does not touch the frame
+    border and holds at most ``max_other`` of its pixels from other objects (a pasted object
+    carries no piece of a neighbour without a label); a person's box must also be at least
+    ``min_person_aspect`` times as tall as wide: a shorter one is a person hidden in part (behind a
+    parked car), whose bottom edge is not where it stands, so the ground-plane placement of
+    :func:`paste_instances` would float it. The matte is the object's instance mask
+    feathered by a Gaussian of ``feather`` px; the patch is the rendered frame, randomised by
+    :func:`~privslam_jax.detect.domain_rand.randomize_photometric` with ``photometric`` (a
+    :class:`~privslam_jax.detect.domain_rand.DomainRandConfig`; ``None`` keeps the render). The
+    world's camera is level at a fixed height, so the instance's ``bottom_row`` and
+    ``source_height`` feed :func:`paste_instances`' ground-plane model as a real cut does.
+
+    With probability ``retexture`` (and ``textures``, a list of real ``uint8`` RGB frames) the
+    object keeps only its render's *shading* and takes a real frame's texture: with ``L`` the
+    render's luminance and ``T`` a random patch of a random real frame of the object's size,
+    ``rgb = (1 − m)·T·clip(L / L̄, 0.3, 2.5)^g + m·render``, ``L̄`` the mean over the object,
+    ``g ~ U(0.5, 1)``, ``m ~ U(0, 0.4)``. The silhouette and the contrast between its parts (head,
+    clothes, legs) stay; the flat render texture, which a detector learns to tell apart from real
+    surfaces, goes (texture randomisation, Tobin et al., IROS 2017).
+    """
+    from privslam_jax.detect.domain_rand import randomize_photometric
+
+    img = np.asarray(frame.image, np.float32)
+    inst_ids = np.asarray(frame.instance_ids)
+    h, w = inst_ids.shape
+    horizon = (h - 1) / 2 / h  # the world's camera is level with its principal point at the centre
+    out = []
+    for box, c, iid in zip(np.asarray(frame.boxes).reshape(-1, 4), np.asarray(frame.class_ids),
+                           np.asarray(frame.instance_of_box)):
+        if int(c) not in classes:
+            continue
+        x1, y1, x2, y2 = (int(v) for v in np.round(box))
+        if x1 <= 1 or y1 <= 1 or x2 >= w - 1 or y2 >= h - 1 or y2 - y1 < min_height or x2 - x1 < 4:
+            continue
+        if int(c) == 0 and y2 - y1 < min_person_aspect * (x2 - x1):
+            continue
+        ids = inst_ids[y1:y2, x1:x2]
+        mine = ids == iid
+        if ((ids > 0) & ~mine).mean() > max_other:
+            continue
+        m = mine.astype(np.float32)
+        alpha = np.minimum(m, cv2.GaussianBlur(m, (0, 0), feather)) if feather > 0 else m
+        patch = img[y1:y2, x1:x2]
+        if textures and rng.random() < retexture:
+            patch = _retexture(patch, m, textures[int(rng.integers(len(textures)))], rng)
+        if photometric is not None:
+            patch = randomize_photometric(patch, rng, photometric)
+        rgb = np.clip(np.rint(patch * 255), 0, 255).astype(np.uint8)
+        out.append(Instance(rgb=rgb, alpha=alpha, boxes=np.array([[0.0, 0.0, x2 - x1, y2 - y1]]),
+                            class_ids=np.array([int(c)], np.int32), bottom_row=float(y2), source_height=h,
+                            horizon=horizon))
+    return out
+
+
+def _retexture(patch: np.ndarray, mask: np.ndarray, texture: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``patch`` (float RGB in [0, 1]) with a real texture under its shading (:func:`synthetic_instances`)."""
+    h, w = mask.shape
+    th, tw = texture.shape[:2]
+    if th < h or tw < w:
+        texture = cv2.resize(texture, (max(tw, w), max(th, h)), interpolation=cv2.INTER_LINEAR)
+        th, tw = texture.shape[:2]
+    y0, x0 = int(rng.integers(0, th - h + 1)), int(rng.integers(0, tw - w + 1))
+    t = texture[y0:y0 + h, x0:x0 + w].astype(np.float32) / 255
+    lum = patch @ np.array([0.299, 0.587, 0.114], np.float32)
+    mean = float((lum * mask).sum() / max(mask.sum(), 1.0))
+    shade = np.clip(lum / max(mean, 1e-3), 0.3, 2.5) ** np.float32(rng.uniform(0.5, 1.0))
+    m = np.float32(rng.uniform(0.0, 0.4))
+    return np.clip((1 - m) * t * shade[..., None] + m * patch, 0, 1).astype(np.float32)
