@@ -163,3 +163,19 @@ def test_synthetic_instances_skip_partly_hidden_people_and_take_real_textures():
         assert np.ptp(m) < 0.02 and -0.01 <= m.mean() <= 0.41
     plain = synthetic_instances(f, np.random.default_rng(0), feather=0.0, textures=[tex], retexture=0.0)[0]
     assert (plain.rgb == 128).all()
+
+
+def test_synthetic_instances_refuse_inputs_they_do_not_understand():
+    f = _synth_frame()
+    f.instance_ids = f.instance_ids[:, :-1]
+    with pytest.raises(ValueError, match="instance_ids"):
+        synthetic_instances(f, np.random.default_rng(0))
+    f = _synth_frame()
+    f.class_ids = f.class_ids[:-1]
+    with pytest.raises(ValueError, match="differ in length"):
+        synthetic_instances(f, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="retexture"):
+        synthetic_instances(_synth_frame(), np.random.default_rng(0), retexture=1.5)
+    with pytest.raises(ValueError, match="uint8"):
+        synthetic_instances(_synth_frame(), np.random.default_rng(0), textures=[np.zeros((10, 10, 3), np.float32)],
+                            retexture=1.0)

@@ -77,6 +77,12 @@ def main(argv: list[str] | None = None) -> int:
         synth_seeds = parse_seeds(a.paste_synthetic_seeds) if a.paste_synthetic_seeds else []
     except ValueError as err:
         p.error(f"--paste-synthetic-seeds: {err}")
+    if a.paste_synthetic_seeds and not synth_seeds:
+        p.error(f"--paste-synthetic-seeds {a.paste_synthetic_seeds!r} names no seed (a range A-B needs A <= B)")
+    if synth_seeds and not a.paste_copies:
+        p.error("--paste-synthetic-seeds needs --paste-copies N > 0 (the objects are pasted into those copies)")
+    if a.paste_retexture > 0 and not synth_seeds:
+        p.error("--paste-retexture applies to synthetic objects: give --paste-synthetic-seeds too")
     shared = shared_dir()
     if shared is None:
         raise SystemExit("needs ../shared (the real training frames); set PRIVSLAM_SHARED")
@@ -146,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
                                                 retexture=a.paste_retexture):
                     bank.append(inst)
                     weight.append(a.paste_person_weight if 0 in inst.class_ids else 1.0)
+        if not bank:
+            p.error("the paste bank is empty: no keyframe object or synthetic object could be cut")
         prob = np.asarray(weight) / np.sum(weight)
         paste_cfg = PasteConfig(match_light=a.paste_match_light)
         pimg, plab = a.out / "images" / "real_paste", a.out / "labels" / "real_paste"

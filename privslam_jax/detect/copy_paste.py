@@ -262,6 +262,16 @@ def synthetic_instances(frame, rng: np.random.Generator, classes: tuple[int, ...
 
     img = np.asarray(frame.image, np.float32)
     inst_ids = np.asarray(frame.instance_ids)
+    if inst_ids.ndim != 2 or img.shape != (*inst_ids.shape, 3):
+        raise ValueError(f"frame.image must be (H, W, 3) and frame.instance_ids (H, W), got {img.shape} and {inst_ids.shape}")
+    n_boxes = len(np.asarray(frame.boxes).reshape(-1, 4))
+    if not n_boxes == len(np.asarray(frame.class_ids)) == len(np.asarray(frame.instance_of_box)):
+        raise ValueError("frame.boxes, frame.class_ids and frame.instance_of_box differ in length")
+    if not 0.0 <= retexture <= 1.0:
+        raise ValueError(f"retexture must be a probability in [0, 1], got {retexture}")
+    for t in textures or ():
+        if np.asarray(t).dtype != np.uint8 or np.ndim(t) != 3 or np.shape(t)[-1] != 3:
+            raise ValueError(f"textures must be uint8 (H, W, 3) frames, got {np.asarray(t).dtype} {np.shape(t)}")
     h, w = inst_ids.shape
     horizon = (h - 1) / 2 / h  # the world's camera is level with its principal point at the centre
     out = []
