@@ -225,6 +225,10 @@ TRAIN_CASES = [
     ("detector", [*DETECTOR, "--warmup-bias-lr", "inf"], "--warmup-bias-lr"),
     ("detector", [*DETECTOR, "--max-steps", "-1"], "--max-steps"),
     ("detector", [*DETECTOR, "--domain-rand", "2"], "--domain-rand"),
+    ("detector", [*DETECTOR, "--style", "1.5"], "--style"),
+    ("detector", [*DETECTOR, "--style", "0.5"], "--style"),  # no --style-frames
+    ("detector", [*DETECTOR, "--style", "0.5", "--style-frames", MISSING], "--style-frames"),
+    ("detector", [*DETECTOR, "--style-beta", "0.5"], "--style-beta"),
     ("detector", [*DETECTOR, "--seed", "-1"], "--seed"),
     ("detector", [*DETECTOR, "--synth-frames", "0"], "--synth-frames"),
     ("detector", [*DETECTOR, "--synth-stride", "0"], "--synth-stride"),

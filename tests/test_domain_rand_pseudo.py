@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from privslam_jax.data.yolo import YoloDataset
-from privslam_jax.detect.domain_rand import DomainRandConfig, randomize_photometric
+from privslam_jax.detect.domain_rand import DomainRandConfig, fourier_style, randomize_photometric
+from privslam_jax.detect.train import TrainConfig, augment
 from privslam_jax.detect.pseudo import PseudoLabelConfig, export_pseudo_yolo
 from privslam_jax.types import Detections
 
@@ -86,6 +87,59 @@ class _TwoBlobs:
                                   scores=jnp.asarray(np.asarray(scores, np.float32)),
                                   class_ids=jnp.asarray(np.full(len(boxes), 2, np.int32))))
         return out
+
+
+@pytest.mark.parametrize("shape", [(48, 80), (47, 81)])
+@pytest.mark.parametrize("beta", [0.0, 0.03, 0.1])
+def test_fourier_style_swaps_the_low_frequency_amplitude_as_a_plain_numpy_reference(shape, beta):
+    rng = np.random.default_rng(0)
+    img = (0.5 + 0.1 * rng.standard_normal((*shape, 3))).clip(0.2, 0.8).astype(np.float32)
+    sty = (0.45 + 0.05 * rng.standard_normal((*shape, 3))).astype(np.float32)
+    # Reference without fftshift: integer frequencies |ky|, |kx| <= b form the window around 0.
+    b = int(np.floor(beta * min(shape)))
+    ky = np.abs(np.round(np.fft.fftfreq(shape[0]) * shape[0]))[:, None]
+    kx = np.abs(np.round(np.fft.fftfreq(shape[1]) * shape[1]))[None, :]
+    window = ((ky <= b) & (kx <= b))[..., None]
+    f, s = np.fft.fft2(img, axes=(0, 1)), np.fft.fft2(sty, axes=(0, 1))
+    ref = np.fft.ifft2(np.where(window, np.abs(s), np.abs(f)) * np.exp(1j * np.angle(f)), axes=(0, 1)).real
+    assert 0 < ref.min() and ref.max() < 1  # no clipping in this case
+    out = fourier_style(img, sty, beta)
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+    np.testing.assert_allclose(out.mean((0, 1)), sty.mean((0, 1)), atol=1e-5)  # the DC term is the style's
+    np.testing.assert_allclose(fourier_style(img, img, beta), img, atol=1e-5)
+
+
+def test_fourier_style_resizes_the_style_and_refuses_what_it_cannot_use():
+    img = 0.4 + 0.2 * _image(2, 40, 64)  # in [0.41, 0.59]: nothing clips after the mean moves to 0.3
+    out = fourier_style(img, np.full((80, 128, 3), 0.3, np.float32), 0.0)
+    np.testing.assert_allclose(out.mean((0, 1)), 0.3, atol=1e-4)
+    for bad in (img[..., 0], img[..., :2]):
+        with pytest.raises(ValueError, match="fourier_style expects"):
+            fourier_style(bad, img, 0.05)
+    with pytest.raises(ValueError, match="beta"):
+        fourier_style(img, img, 0.5)
+
+
+def test_augment_gives_the_style_frames_low_frequencies_and_config_refuses_a_missing_bank(tmp_path):
+    cfg = TrainConfig(data=str(tmp_path), num_classes=2, imgsz=64, imgh=32, fliplr=0.0, scale_aug=0.0, translate=0.0,
+                      hsv=(0.0, 0.0, 0.0), style=1.0, style_frames=("unused",), style_beta=0.0)
+    img = 0.4 + 0.2 * _image(3, 32, 64)  # nothing clips after the mean moves by < 0.2
+    bank = np.zeros((2, 32, 64, 3), np.uint8)
+    bank[0] = (100, 120, 140)
+    bank[1] = (140, 110, 90)
+    for seed in range(6):  # beta 0: the canvas takes one bank frame's mean colour
+        out, boxes, keep = augment(img, np.array([[8.0, 4, 40, 28]]), cfg, np.random.default_rng(seed), bank)
+        means = out.mean((0, 1)) * 255
+        assert min(np.abs(means - bank[i, 0, 0]).max() for i in range(2)) < 0.05
+        np.testing.assert_allclose(boxes, [[8, 4, 40, 28]], atol=1e-4)  # boxes untouched
+    plain = dataclasses.replace(cfg, style=0.0, style_frames=())
+    np.testing.assert_allclose(augment(img, np.zeros((0, 4)), plain, np.random.default_rng(0))[0], img, atol=1e-5)
+    with pytest.raises(ValueError, match="style_bank"):
+        augment(img, np.zeros((0, 4)), cfg, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="style_frames"):
+        dataclasses.replace(cfg, style_frames=())
+    with pytest.raises(ValueError, match="style_beta"):
+        dataclasses.replace(cfg, style_beta=0.6)
 
 
 def test_export_pseudo_yolo_labels_confident_boxes_and_greys_uncertain_ones(tmp_path):

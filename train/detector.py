@@ -82,6 +82,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="stop after this many steps (schedule still spans --epochs)")
     p.add_argument("--domain-rand", type=unit_interval, default=0.0,
                    help="probability of photometric domain randomisation per image")
+    p.add_argument("--style", type=unit_interval, default=0.0,
+                   help="probability per image of a real frame's low-frequency spectrum (Fourier domain adaptation)")
+    p.add_argument("--style-frames", nargs="+", default=(), help="real frames (files or folders) for --style")
+    p.add_argument("--style-beta", type=float, default=0.05, help="FDA window size, a fraction of the short side, in [0, 0.5)")
     p.add_argument("--init-weights", default=None, help="fine-tune from this .npz checkpoint (same scale and classes)")
     p.add_argument("--synth-randomize-camera", action="store_true",
                    help="per seed random camera height, focal length and object density in the synthetic export")
@@ -98,6 +102,17 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.imgh is not None and a.imgh > a.imgsz:
         p.error(f"argument --imgh: must be at most --imgsz ({a.imgsz}), got {a.imgh}")
+    if not 0.0 <= a.style_beta < 0.5:
+        p.error(f"argument --style-beta: must be in [0, 0.5), got {a.style_beta}")
+    if a.style and not a.style_frames:
+        p.error("argument --style: needs --style-frames (real frames to take the spectra from)")
+    if a.style:
+        from privslam_jax.inpaint.data import image_paths
+
+        try:
+            image_paths(*a.style_frames)
+        except (OSError, ValueError) as err:
+            p.error(f"argument --style-frames: {err}")
     primary = start_parallel(p, a, a.batch)
     if a.coco_names and a.num_classes > len(COCO_NAMES_8):
         p.error(f"argument --coco-names: knows the first {len(COCO_NAMES_8)} COCO names, got --num-classes {a.num_classes}")
@@ -118,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
                       batch_size=a.batch, epochs=a.epochs, lr0=a.lr0, lrf=a.lrf, cos_lr=a.cos_lr, momentum=a.momentum,
                       warmup_epochs=a.warmup_epochs, warmup_bias_lr=a.warmup_bias_lr, optimizer=a.optimizer, seed=a.seed, ckpt_dir=a.ckpt_dir,
                       ckpt_every=a.ckpt_every, max_steps=a.max_steps,
-                      domain_rand=a.domain_rand, init_weights=a.init_weights, devices=a.devices)
+                      domain_rand=a.domain_rand, style=a.style, style_frames=tuple(a.style_frames),
+                      style_beta=a.style_beta, init_weights=a.init_weights, devices=a.devices)
     result = train(cfg, progress=primary)
     if not primary:
         return 0

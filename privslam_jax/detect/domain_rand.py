@@ -15,6 +15,11 @@ probability, drawn from the given ``numpy`` generator so that a batch is reprodu
   noise, JPEG compression artefacts.
 
 Boxes are unchanged by all of them (no geometric effect).
+
+:func:`fourier_style` is a different kind of shift: Fourier domain adaptation (Yang & Soatto,
+CVPR 2020) gives a render the low-frequency amplitude spectrum of a real frame (its global
+illumination, colour cast and contrast at coarse scales) and keeps the render's phase (its edges and
+shapes, hence its boxes). It needs real frames, so it is not part of :func:`randomize_photometric`.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-__all__ = ["DomainRandConfig", "randomize_photometric"]
+__all__ = ["DomainRandConfig", "fourier_style", "randomize_photometric"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,3 +102,34 @@ def randomize_photometric(image: np.ndarray, rng: np.random.Generator,
             raise RuntimeError("cv2.imencode failed to write a JPEG in memory")
         img = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB).astype(np.float32) / 255
     return np.ascontiguousarray(img, np.float32)
+
+
+def fourier_style(image: np.ndarray, style: np.ndarray, beta: float) -> np.ndarray:
+    """``image`` with the low-frequency amplitude spectrum of ``style`` (FDA, Yang & Soatto, CVPR 2020, eq. 3).
+
+    Per channel, with ``F = FFT2(image)``, ``S = FFT2(style)`` centred by ``fftshift``,
+    ``M_b`` = the ``(2b+1) × (2b+1)`` window around zero frequency, ``b = ⌊beta · min(H, W)⌋``::
+
+        out = IFFT2( ((1 − M_b)·|F| + M_b·|S|) · exp(i·arg F) ),  clipped to [0, 1]
+
+    ``beta = 0`` swaps only the mean (the DC term); the paper uses 0.01–0.09. ``style`` is resized to
+    ``image``'s size when they differ. Both are ``(H, W, 3)`` float RGB in ``[0, 1]``.
+    """
+    img = np.asarray(image, np.float32)
+    sty = np.asarray(style, np.float32)
+    if img.ndim != 3 or img.shape[-1] != 3 or sty.ndim != 3 or sty.shape[-1] != 3:
+        raise ValueError(f"fourier_style expects (H, W, 3) images, got {img.shape} and {sty.shape}")
+    if not 0.0 <= beta < 0.5:
+        raise ValueError(f"beta must be in [0, 0.5), got {beta}")
+    h, w = img.shape[:2]
+    if sty.shape[:2] != (h, w):
+        sty = cv2.resize(sty, (w, h), interpolation=cv2.INTER_AREA)
+    f = np.fft.fftshift(np.fft.fft2(img, axes=(0, 1)), axes=(0, 1))
+    s = np.fft.fftshift(np.fft.fft2(sty, axes=(0, 1)), axes=(0, 1))
+    b = int(np.floor(beta * min(h, w)))
+    ch, cw = h // 2, w // 2  # the zero frequency after fftshift
+    win = (slice(max(ch - b, 0), ch + b + 1), slice(max(cw - b, 0), cw + b + 1))
+    amp = np.abs(f)
+    amp[win] = np.abs(s[win])
+    out = np.fft.ifft2(np.fft.ifftshift(amp * np.exp(1j * np.angle(f)), axes=(0, 1)), axes=(0, 1)).real
+    return np.ascontiguousarray(np.clip(out, 0, 1), np.float32)

@@ -19,8 +19,9 @@ Recipe (ultralytics ``engine/trainer.py`` defaults; ``cfg/default.yaml``):
   e.g. 192×640 for KITTI-shaped frames — 3.3× less compute than 640² for the same pixels), random scale (±50 %) and translation (±10 %) with grey fill, HSV jitter
   (h 0.015, s 0.7, v 0.4), left-right flip (0.5); boxes transformed, clipped and filtered as
   ultralytics ``box_candidates`` (w, h > 2 px, area kept > 10 %, aspect < 100).
-* Optional photometric domain randomisation (``domain_rand``, :mod:`privslam_jax.detect.domain_rand`)
-  and fine-tuning from a checkpoint (``init_weights``).
+* Optional Fourier domain adaptation towards real frames (``style``, ``style_frames``; applied after
+  the HSV jitter), photometric domain randomisation (``domain_rand``,
+  :mod:`privslam_jax.detect.domain_rand`) and fine-tuning from a checkpoint (``init_weights``).
 * Checkpoints: orbax ``CheckpointManager`` every ``ckpt_every`` steps (params, batch stats,
   optimiser state, EMA, step); ``train`` resumes from the latest one in ``ckpt_dir``. Data order
   and augmentation depend only on ``(seed, epoch, index)``, so a run killed and resumed ends with
@@ -44,12 +45,12 @@ import optax
 from flax import nnx
 from tqdm import tqdm
 
-from privslam_jax.detect.domain_rand import randomize_photometric
+from privslam_jax.detect.domain_rand import fourier_style, randomize_photometric
 from privslam_jax.detect.loss import LossConfig, detection_loss
 from privslam_jax.detect.predict import Letterboxed, letterbox
 from privslam_jax.detect.yolov8 import YOLOv8, YOLOv8Config, init_yolov8
 
-__all__ = ["TrainConfig", "train", "load_batch", "augment", "TrainResult"]
+__all__ = ["TrainConfig", "train", "load_batch", "augment", "style_bank", "TrainResult"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,6 +104,13 @@ class TrainConfig:
     domain_rand: float = 0.0
     """Probability of a photometric domain-randomisation draw per image
     (:func:`privslam_jax.detect.domain_rand.randomize_photometric`; 0: off)."""
+    style: float = 0.0
+    """Probability per image of taking a real frame's low-frequency amplitude spectrum
+    (:func:`privslam_jax.detect.domain_rand.fourier_style`, before the domain randomisation; 0: off)."""
+    style_frames: tuple[str, ...] = ()
+    """Real frames (image files or folders) whose spectra ``style`` draws from, each resized to the canvas."""
+    style_beta: float = 0.05
+    """FDA window ``β`` of :func:`~privslam_jax.detect.domain_rand.fourier_style`."""
     init_weights: str | None = None
     """Start from this detector checkpoint (our ``.npz``; same scale and classes) instead of a random init."""
     max_boxes: int = 64
@@ -126,6 +134,10 @@ class TrainConfig:
         for name in ("num_classes", "batch_size", "epochs", "ckpt_every", "devices"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if not (0.0 <= self.style <= 1.0 and 0.0 <= self.style_beta < 0.5):
+            raise ValueError(f"style must be in [0, 1] and style_beta in [0, 0.5), got {self.style}, {self.style_beta}")
+        if self.style and not self.style_frames:
+            raise ValueError("style > 0 needs style_frames (real frames to take the spectra from)")
         if self.optimizer not in ("sgd", "adamw"):
             raise ValueError(f"optimizer must be 'sgd' or 'adamw', got {self.optimizer!r}")
         if self.batch_size % self.devices:
@@ -146,8 +158,11 @@ class TrainResult:
     step: int
 
 
-def augment(image: np.ndarray, boxes: np.ndarray, cfg: TrainConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Letterbox + random affine + HSV + flip of one float RGB image with ``xyxy`` pixel boxes.
+def augment(image: np.ndarray, boxes: np.ndarray, cfg: TrainConfig, rng: np.random.Generator,
+            styles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Letterbox + random affine + HSV (+ Fourier style, domain randomisation) + flip of one float RGB
+    image with ``xyxy`` pixel boxes. ``styles``: the ``(N, H, W, 3)`` uint8 frames of :func:`style_bank`
+    (needed when ``cfg.style > 0``).
 
     Returns the ``(H, W, 3)`` image (:attr:`TrainConfig.canvas`), the kept boxes and the indices
     of the kept boxes.
@@ -188,6 +203,10 @@ def augment(image: np.ndarray, boxes: np.ndarray, cfg: TrainConfig, rng: np.rand
     hsv[..., 1] = np.clip(hsv[..., 1] * hg[1], 0, 1)
     hsv[..., 2] = np.clip(hsv[..., 2] * hg[2], 0, 1)
     img = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+    if cfg.style and rng.random() < cfg.style:
+        if styles is None or not len(styles):
+            raise ValueError("cfg.style > 0 needs the frames of style_bank(cfg)")
+        img = fourier_style(img, styles[rng.integers(len(styles))].astype(np.float32) / 255, cfg.style_beta)
     if cfg.domain_rand and rng.random() < cfg.domain_rand:
         img = randomize_photometric(img, rng)
     out = clipped[keep]
@@ -197,7 +216,20 @@ def augment(image: np.ndarray, boxes: np.ndarray, cfg: TrainConfig, rng: np.rand
     return np.ascontiguousarray(img, np.float32), out.astype(np.float32), np.nonzero(keep)[0]
 
 
-def load_batch(dataset, indices: np.ndarray, cfg: TrainConfig, epoch: int) -> tuple[np.ndarray, ...]:
+def style_bank(cfg: TrainConfig) -> np.ndarray | None:
+    """The ``(N, H, W, 3)`` uint8 frames of ``cfg.style_frames`` resized to the training canvas (``None`` when
+    ``cfg.style`` is 0)."""
+    if not cfg.style:
+        return None
+    from privslam_jax.data.images import read_rgb8
+    from privslam_jax.inpaint.data import image_paths
+
+    hh, ww = cfg.canvas
+    return np.stack([cv2.resize(read_rgb8(p), (ww, hh), interpolation=cv2.INTER_AREA) for p in image_paths(*cfg.style_frames)])
+
+
+def load_batch(dataset, indices: np.ndarray, cfg: TrainConfig, epoch: int,
+               styles: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Augmented batch: images ``(B, H, W, 3)``, labels ``(B, M)``, boxes ``(B, M, 4)``, mask ``(B, M)``."""
     n = len(indices)
     images = np.zeros((n, *cfg.canvas, 3), np.float32)
@@ -207,7 +239,7 @@ def load_batch(dataset, indices: np.ndarray, cfg: TrainConfig, epoch: int) -> tu
     for j, i in enumerate(indices):
         sample = dataset[int(i)]
         rng = np.random.default_rng((cfg.seed, epoch, int(i)))
-        img, b, keep = augment(sample.image, sample.boxes, cfg, rng)
+        img, b, keep = augment(sample.image, sample.boxes, cfg, rng, styles)
         k = min(len(b), cfg.max_boxes)
         images[j], boxes[j, :k], labels[j, :k], mask[j, :k] = img, b[:k], np.asarray(sample.class_ids)[keep][:k], True
     return images, labels, boxes, mask
@@ -310,6 +342,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
 
     mesh = data_mesh(cfg.devices)
     dataset = YoloDataset(cfg.data, cfg.split)
+    styles = style_bank(cfg)
     n = len(dataset)
     if cfg.batch_size > n:
         raise ValueError(f"batch_size {cfg.batch_size} exceeds the {n} images of {cfg.data}/{cfg.split}")
@@ -355,7 +388,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> TrainResult:
     def batch_of(step: int) -> tuple[np.ndarray, ...]:
         epoch, k = divmod(step, steps_per_epoch)
         order = np.random.default_rng((cfg.seed, epoch)).permutation(n)
-        return load_batch(dataset, order[k * cfg.batch_size : (k + 1) * cfg.batch_size][rows], cfg, epoch)
+        return load_batch(dataset, order[k * cfg.batch_size : (k + 1) * cfg.batch_size][rows], cfg, epoch, styles)
 
     batch = batch_of(start) if start < total_steps else None
     for step in range(start, total_steps):
