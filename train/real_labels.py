@@ -8,7 +8,9 @@ Command::
 ``train/data/real_boxes.json`` holds boxes the developers drew by eye on keyframes of the real
 frames that ``../shared`` allows training on (``data/real/kitti_raw_a`` and the KITTI odometry
 ``seq1`` and ``00``; never the evaluation sets ``kitti_object``, ``kitti_raw_b``,
-``nuscenes_front``), with no detector involved. Each keyframe's boxes are carried to the
+``nuscenes_front``), with no detector involved; the shipped real-frame detector was trained on it.
+``--boxes train/data/real_boxes_v2.json`` has the same keyframes with the parked cars that version 1
+left out. Each keyframe's boxes are carried to the
 ``--window`` frames before and after it by dense optical flow
 (:func:`privslam_jax.detect.temporal.box_flow`, frame by frame), and those frames are written as
 the YOLO split ``OUT/{images,labels}/real``. With ``--paste-copies N``, the split
