@@ -27,7 +27,7 @@ Detectors: the two embedded ones (``privslam_jax/assets``: synthetic-world and r
 
 Command::
 
-    python experiments/table1b_real_recall.py [--weights extra.npz ...] [--out results/table1b_real_recall.md]
+    python experiments/table1b_real_recall.py [--weights extra.npz[@IMGSZ] ...] [--out results/table1b_real_recall.md]
 
 Runtime: ≈ 8 min on 2 cores. Needs ``../shared`` (exits with a message without it).
 Expected: embedded synthetic-world detector ≈ 0.07 recall at 0.4; YOLOv8n 0.70 at 0.4 and ≥ 0.95
@@ -122,7 +122,8 @@ def raw_a_reference(images: list[np.ndarray], runs: list[tuple[int, int]]) -> li
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--weights", nargs="*", default=[], help="extra detector checkpoints (.npz or .pt)")
+    p.add_argument("--weights", nargs="*", default=[],
+                   help="extra detector checkpoints (.npz or .pt), each optionally PATH@IMGSZ for another letterbox size")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "table1b_real_recall.md")
     a = p.parse_args(argv)
     shared = shared_dir()
@@ -134,7 +135,13 @@ def main(argv: list[str] | None = None) -> int:
     detectors = [("embedded synthetic-world YOLOv8n", Detector.embedded(preset)),
                  ("embedded real-frame YOLOv8n", Detector.embedded(preset, domain="real")),
                  ("imported COCO YOLOv8n (yolov8n.pt)", Detector.from_weights(shared / "weights" / "yolov8n.pt", preset))]
-    detectors += [(Path(w).name, Detector.from_weights(w, preset)) for w in a.weights]
+    for w in a.weights:
+        path, _, size = w.partition("@")
+        try:
+            config = dataclasses.replace(preset, imgsz=int(size)) if size else preset
+        except ValueError as err:
+            p.error(f"--weights {w}: {err}")
+        detectors.append((Path(path).name + (f" at {size}" if size else ""), Detector.from_weights(path, config)))
 
     ko = shared / "data" / "real" / "kitti_object"
     ko_paths = sorted((ko / "image_2").glob("*.png"))
