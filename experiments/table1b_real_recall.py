@@ -126,6 +126,18 @@ def main(argv: list[str] | None = None) -> int:
                    help="extra detector checkpoints (.npz or .pt), each optionally PATH@IMGSZ for another letterbox size")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "table1b_real_recall.md")
     a = p.parse_args(argv)
+    extra = []  # (name, path, imgsz or None), checked before any work
+    for w in a.weights:
+        path, _, size = w.partition("@")
+        if not Path(path).is_file():
+            p.error(f"--weights {w}: no such file {path}")
+        try:
+            imgsz = int(size) if size else None
+            if imgsz is not None:
+                DetectorConfig(imgsz=imgsz)
+        except ValueError as err:
+            p.error(f"--weights {w}: the size after @ must be a positive multiple of 32 ({err})")
+        extra.append((Path(path).name + (f" at {size}" if size else ""), path, imgsz))
     shared = shared_dir()
     if shared is None:
         print("table1b needs ../shared (real frames, yolov8n.pt); set PRIVSLAM_SHARED", file=sys.stderr)
@@ -135,13 +147,8 @@ def main(argv: list[str] | None = None) -> int:
     detectors = [("embedded synthetic-world YOLOv8n", Detector.embedded(preset)),
                  ("embedded real-frame YOLOv8n", Detector.embedded(preset, domain="real")),
                  ("imported COCO YOLOv8n (yolov8n.pt)", Detector.from_weights(shared / "weights" / "yolov8n.pt", preset))]
-    for w in a.weights:
-        path, _, size = w.partition("@")
-        try:
-            config = dataclasses.replace(preset, imgsz=int(size)) if size else preset
-        except ValueError as err:
-            p.error(f"--weights {w}: {err}")
-        detectors.append((Path(path).name + (f" at {size}" if size else ""), Detector.from_weights(path, config)))
+    detectors += [(name, Detector.from_weights(path, dataclasses.replace(preset, imgsz=imgsz) if imgsz else preset))
+                  for name, path, imgsz in extra]
 
     ko = shared / "data" / "real" / "kitti_object"
     ko_paths = sorted((ko / "image_2").glob("*.png"))

@@ -229,6 +229,7 @@ TRAIN_CASES = [
     ("detector", [*DETECTOR, "--style", "0.5"], "--style"),  # no --style-frames
     ("detector", [*DETECTOR, "--style", "0.5", "--style-frames", MISSING], "--style-frames"),
     ("detector", [*DETECTOR, "--style-beta", "0.5"], "--style-beta"),
+    ("detector", [*DETECTOR, "--style-frames", MISSING], "--style-frames"),  # without --style
     ("detector", [*DETECTOR, "--seed", "-1"], "--seed"),
     ("detector", [*DETECTOR, "--synth-frames", "0"], "--synth-frames"),
     ("detector", [*DETECTOR, "--synth-stride", "0"], "--synth-stride"),

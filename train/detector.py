@@ -104,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"argument --imgh: must be at most --imgsz ({a.imgsz}), got {a.imgh}")
     if not 0.0 <= a.style_beta < 0.5:
         p.error(f"argument --style-beta: must be in [0, 0.5), got {a.style_beta}")
+    if a.style_frames and not a.style:
+        p.error("argument --style-frames: has no effect without --style P > 0")
     if a.style and not a.style_frames:
         p.error("argument --style: needs --style-frames (real frames to take the spectra from)")
     if a.style:
