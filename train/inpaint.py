@@ -68,6 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workdir", type=Path, required=True)
     p.add_argument("--export", type=Path, help="write the trained Inpainter .npz here")
     p.add_argument("--width", type=positive_int, default=16)
+    p.add_argument("--inpaint-width", type=nonnegative_int, default=0,
+                   help="the image generator's own width (0: --width); with --init, a wider one than the "
+                   "checkpoint's (up to twice) starts as its function-preserving widening (Net2Net)")
     p.add_argument("--blocks", type=positive_int, default=8)
     p.add_argument("--size", type=positive_int, default=64, help="training crop size, multiple of 4")
     p.add_argument("--batch", type=positive_int, default=8)
@@ -108,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from privslam_jax.inpaint.data import CropBank, FolderData, Mixture, RealHoleData, image_paths, object_shapes
     from privslam_jax.inpaint.filter import PREFILLS, Inpainter
-    from privslam_jax.inpaint.train import STAGES, TrainConfig, train
+    from privslam_jax.inpaint.train import STAGES, TrainConfig, check_init, train
 
     if a.prefill not in PREFILLS:
         p.error(f"argument --prefill: invalid choice: {a.prefill!r} (choose from {', '.join(PREFILLS)})")
@@ -128,13 +131,20 @@ def main(argv: list[str] | None = None) -> int:
         if len(steps) != 3:
             p.error(f"argument --steps: needs three comma-separated numbers >= 0 (edge,inpaint,joint), got {a.steps!r}")
         stages = tuple(zip(("edge", "inpaint", "joint"), steps, strict=True))
-    cfg = TrainConfig(width=a.width, num_residual_blocks=a.blocks, size=a.size, batch_size=a.batch,
+    cfg = TrainConfig(width=a.width, inpaint_width=a.inpaint_width, num_residual_blocks=a.blocks, size=a.size, batch_size=a.batch,
                       stages=stages, seed=a.seed,
                       lr=a.lr, inpaint_lr=a.inpaint_lr, inpaint_beta1=a.inpaint_beta1,
                       inpaint_lr_final=a.inpaint_lr_final,
                       inpaint_adv_weight=a.inpaint_adv_weight,
                       prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every,
                       devices=a.devices)
+    init = None
+    if a.init is not None:  # before any work: a checkpoint that cannot start this training is refused
+        try:
+            init = Inpainter.load(a.init)
+            check_init(init.config, cfg)
+        except (OSError, ValueError) as err:
+            p.error(f"argument --init: {err}")
     a.workdir.mkdir(parents=True, exist_ok=True)
     bank_path = a.workdir / "crop_bank.npz"
     data = None
@@ -168,7 +178,6 @@ def main(argv: list[str] | None = None) -> int:
         real = RealHoleData(image_paths(*a.real), object_shapes(masks), a.size, seed=a.seed)
         print(f"real frames: {len(real.paths)}, object shapes: {len(real.shapes)} from {len(masks)} mask files")
         data = real if data is None else Mixture([real, data], [a.real_weight, 1 - a.real_weight], seed=a.seed)
-    init = Inpainter.load(a.init) if a.init is not None else None
     trainer = train(cfg, data, a.workdir, max_steps=a.max_steps, init=init, progress=primary)
     if a.export is not None and primary:
         trainer.inpainter().save(a.export)

@@ -56,6 +56,9 @@ class InpainterConfig:
 
     width: int = CPU_WIDTH
     """Channel width (official 64; CPU preset 16)."""
+    inpaint_width: int = 0
+    """The image generator's own channel width (0: :attr:`width`); a wider G2 than G1 is made by
+    :func:`~privslam_jax.inpaint.widen.widen_inpaint_generator`."""
     num_residual_blocks: int = 8
     """Residual blocks of each generator (official 8)."""
     size: int = 64
@@ -91,10 +94,17 @@ class InpainterConfig:
     def __post_init__(self):
         if self.prefill not in PREFILLS:
             raise ValueError(f"prefill must be one of {PREFILLS}, got {self.prefill!r}")
+        if self.inpaint_width < 0:
+            raise ValueError(f"inpaint_width must be >= 0 (0: width), got {self.inpaint_width}")
         if not 0.0 <= self.prefill_blend <= 1.0:
             raise ValueError(f"prefill_blend must lie in [0, 1], got {self.prefill_blend}")
         if self.prefill_blend != 1.0 and self.prefill == "white":
             raise ValueError("prefill_blend < 1 needs a prefill method (telea, ns, gray, black), not white")
+
+    @property
+    def g2_width(self) -> int:
+        """The image generator's channel width."""
+        return self.inpaint_width or self.width
 
 
 PREFILLS: tuple[str, ...] = ("white", "gray", "black", "telea", "ns")
@@ -171,6 +181,10 @@ class Inpainter:
                  use_edge_model: bool = True):
         if config.size % 4:
             raise ValueError(f"model size must be a multiple of 4, got {config.size}")
+        nets = (edge_gen.width, inpaint_gen.width, edge_gen.num_residual_blocks, inpaint_gen.num_residual_blocks)
+        if nets != (config.width, config.g2_width, config.num_residual_blocks, config.num_residual_blocks):
+            raise ValueError(f"generators of widths {nets[:2]} and {nets[2:]} residual blocks do not match the config's "
+                             f"widths {(config.width, config.g2_width)} and {config.num_residual_blocks} blocks")
         self.config = config
         self.use_edge_model = use_edge_model
         edge_gen.eval()
@@ -202,7 +216,7 @@ class Inpainter:
         """Randomly initialised generators (N(0, 0.02)) — for tests and training."""
         rngs = nnx.Rngs(seed)
         eg = EdgeGenerator(num_residual_blocks=config.num_residual_blocks, width=config.width, rngs=rngs)
-        ig = InpaintGenerator(num_residual_blocks=config.num_residual_blocks, width=config.width, rngs=rngs)
+        ig = InpaintGenerator(num_residual_blocks=config.num_residual_blocks, width=config.g2_width, rngs=rngs)
         return cls(eg, ig, config)
 
     @property
@@ -255,18 +269,19 @@ class Inpainter:
             raise input_error(path, f"config width {config.width} / {config.num_residual_blocks} residual blocks "
                                     f"do not fit the {len(arrays)} arrays of the file")
 
-        def shapes(width: int) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
-            state = cls.init(dataclasses.replace(config, width=width)).state
+        def shapes(width: int, g2_width: int) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+            state = cls.init(dataclasses.replace(config, width=width, inpaint_width=g2_width)).state
             return {".".join(map(str, k)): (v[...].shape, np.dtype(v[...].dtype)) for k, v in nnx.to_flat_state(state)}
 
-        # Every dimension of the network is affine in its width: derive the expected shapes from two
+        # Every dimension of each generator is affine in its width: derive the expected shapes from
         # tiny networks and check the file against them before building the real one.
         try:
-            one, two = shapes(1), shapes(2)
+            one, two, two_g2 = shapes(1, 1), shapes(2, 1), shapes(1, 2)
         except (ValueError, TypeError) as err:
             raise input_error(path, "invalid inpainter config", err) from err
         for name, (s1, dtype) in one.items():
-            want = tuple(a + (b - a) * (config.width - 1) for a, b in zip(s1, two[name][0]))
+            want = tuple(a + (b - a) * (config.width - 1) + (c - a) * (config.g2_width - 1)
+                         for a, b, c in zip(s1, two[name][0], two_g2[name][0]))
             if name not in arrays:
                 raise input_error(path, f"missing {name}")
             if arrays[name].shape != want or arrays[name].dtype != dtype:

@@ -43,6 +43,7 @@ from privslam_jax.inpaint import losses as L
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, Discriminator, EdgeGenerator, InpaintGenerator
 from privslam_jax.inpaint.filter import PREFILLS, Inpainter, InpainterConfig, residual_output
 from privslam_jax.inpaint.masks import safe_canny, to_grey
+from privslam_jax.inpaint.widen import widen_inpaint_generator
 
 __all__ = ["DataFn", "InpaintTrainer", "TrainConfig", "prepare_batch", "train"]
 
@@ -69,6 +70,8 @@ class TrainConfig:
 
     width: int = CPU_WIDTH
     """Channel width of all four networks (official 64)."""
+    inpaint_width: int = 0
+    """Channel width of the image generator and its discriminator (0: :attr:`width`)."""
     num_residual_blocks: int = 8
     """Residual blocks per generator (official 8)."""
     size: int = 64
@@ -133,6 +136,8 @@ class TrainConfig:
         for name in ("width", "num_residual_blocks", "size", "batch_size", "checkpoint_every", "devices"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.inpaint_width < 0:
+            raise ValueError(f"inpaint_width must be >= 0 (0: width), got {self.inpaint_width}")
         if self.sample_every < 0:
             raise ValueError(f"sample_every must be >= 0, got {self.sample_every}")
         if self.batch_size % self.devices:
@@ -282,11 +287,11 @@ class InpaintTrainer:
     def __init__(self, config: TrainConfig, feature_fn: Callable | None = None):
         c = self.config = config
         rngs = nnx.Rngs(c.seed)
-        kw = dict(num_residual_blocks=c.num_residual_blocks, width=c.width, rngs=rngs)
-        self.edge_g = EdgeGenerator(**kw)
-        self.inpaint_g = InpaintGenerator(**kw)
+        w2 = c.inpaint_width or c.width
+        self.edge_g = EdgeGenerator(num_residual_blocks=c.num_residual_blocks, width=c.width, rngs=rngs)
+        self.inpaint_g = InpaintGenerator(num_residual_blocks=c.num_residual_blocks, width=w2, rngs=rngs)
         self.edge_d = Discriminator(2, use_sigmoid=True, width=c.width, rngs=rngs)
-        self.inpaint_d = Discriminator(3, use_sigmoid=False, width=c.width, rngs=rngs)
+        self.inpaint_d = Discriminator(3, use_sigmoid=False, width=w2, rngs=rngs)
         g_tx = _adam(c.lr, c.beta1, c.beta2)
         d_tx = _adam(c.lr * c.d2g_lr, c.beta1, c.beta2)
         g2_tx = _adam(c.lr if c.inpaint_lr is None else c.inpaint_lr,
@@ -354,7 +359,7 @@ class InpaintTrainer:
     def inpainter(self, size: int | None = None) -> Inpainter:
         """An :class:`Inpainter` on copies of the current generators."""
         c = self.config
-        cfg = InpainterConfig(width=c.width, num_residual_blocks=c.num_residual_blocks,
+        cfg = InpainterConfig(width=c.width, inpaint_width=c.inpaint_width, num_residual_blocks=c.num_residual_blocks,
                               size=size or c.size, sigma=c.sigma, prefill=c.prefill, residual=c.residual)
         eg, ig = nnx.clone(self.edge_g), nnx.clone(self.inpaint_g)
         if self.mesh is not None:  # replicated over the mesh (several processes too): one plain copy
@@ -378,6 +383,19 @@ def _grid(batch: dict[str, np.ndarray], outs: dict[str, np.ndarray], rows: int =
     return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
+def check_init(init: InpainterConfig, config: TrainConfig) -> None:
+    """Raise ``ValueError`` unless an inpainter of config ``init`` can start ``config``'s training: the
+    same edge-generator width and residual blocks, and an image generator of the same width or up to
+    twice as wide (widened by :func:`~privslam_jax.inpaint.widen.widen_inpaint_generator`)."""
+    w2 = config.inpaint_width or config.width
+    if ((init.width, init.num_residual_blocks) != (config.width, config.num_residual_blocks)
+            or not init.g2_width <= w2 <= 2 * init.g2_width):
+        raise ValueError(f"the init inpainter has width {init.width} (image generator {init.g2_width}) and "
+                         f"{init.num_residual_blocks} residual blocks, the training config {config.width} (image "
+                         f"generator {w2}) and {config.num_residual_blocks}: widths and blocks must match, except "
+                         "that the image generator may widen to at most twice its width")
+
+
 def train(
     config: TrainConfig,
     data: DataFn,
@@ -394,6 +412,9 @@ def train(
     random initialisation (discriminators and optimiser moments start fresh); ignored when a
     checkpoint is resumed, which already holds the fine-tuned weights. A residual config started
     from a non-residual inpainter gets G2's last layer zeroed, so it starts at its prefill exactly.
+    A config whose image generator is wider than ``init``'s (:attr:`TrainConfig.inpaint_width`, up to
+    twice) starts from the widened copy that computes the same fill
+    (:func:`~privslam_jax.inpaint.widen.widen_inpaint_generator`, seeded by ``config.seed``).
 
     Writes ``workdir/checkpoints/<step>`` (orbax), ``workdir/samples/step_<n>.png`` and
     ``workdir/log.csv`` (step, stage, seconds, losses). ``max_steps`` stops early (e.g. to
@@ -419,10 +440,10 @@ def train(
         # the jitted steps' cache (in memory and on disk) valid instead of compiling all four anew
         trainer.load_state_dict(jax.tree.map(lambda x: jnp.array(to_host(x)), restored))
     elif init is not None:
-        if (init.config.width, init.config.num_residual_blocks) != (config.width, config.num_residual_blocks):
-            raise ValueError(f"init inpainter has width {init.config.width}, {init.config.num_residual_blocks} blocks; "
-                             f"the training config {config.width}, {config.num_residual_blocks}")
+        check_init(init.config, config)
         eg, ig = init.modules
+        if config.inpaint_width and config.inpaint_width != init.config.g2_width:  # Net2Net, from the model seed
+            ig = widen_inpaint_generator(ig, config.inpaint_width, seed=config.seed)
         nnx.update(trainer.edge_g, nnx.state(eg))
         nnx.update(trainer.inpaint_g, nnx.state(ig))
         if config.residual and not init.config.residual:
