@@ -89,3 +89,31 @@ def test_training_starts_from_the_widened_generator(tmp_path):
         with pytest.raises(ValueError, match="at most twice"):
             train(dataclasses.replace(CFG, inpaint_width=width), _data, tmp_path / f"bad{width}", max_steps=0,
                   init=init, progress=False)
+
+
+def test_train_script_widens_its_init_and_exports_the_inference_settings(tmp_path):
+    """``train/inpaint.py --init narrow.npz --inpaint-width 6 --export-flip-average --export-prefill-blend 0.8``:
+    the exported checkpoint has the wider image generator and carries those settings in its config."""
+    import importlib.util
+    from pathlib import Path
+
+    import cv2
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "img").mkdir()
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / "img" / f"{i}.png"), rng.integers(0, 255, (48, 48, 3)).astype(np.uint8))
+    init = Inpainter.init(dataclasses.replace(NARROW, num_residual_blocks=1, prefill="telea", residual=True), seed=5)
+    init.save(tmp_path / "narrow.npz")
+    script = Path(__file__).resolve().parents[1] / "train" / "inpaint.py"
+    spec = importlib.util.spec_from_file_location("train_inpaint_widen", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    argv = ["--folder", str(tmp_path / "img"), "--width", "4", "--blocks", "1", "--size", "32", "--batch", "2",
+            "--stages", "edge_inpaint:1", "--prefill", "telea", "--residual", "--init", str(tmp_path / "narrow.npz"),
+            "--inpaint-width", "6", "--workdir", str(tmp_path / "run"), "--export", str(tmp_path / "wide.npz"),
+            "--export-flip-average", "--export-prefill-blend", "0.8", "--sample-every", "0"]
+    assert module.main(argv) == 0
+    out = Inpainter.load(tmp_path / "wide.npz")
+    assert out.config == dataclasses.replace(init.config, inpaint_width=6, flip_average=True, prefill_blend=0.8)
+    assert out.modules[1].enc1.kernel.shape == (7, 7, 4, 6)

@@ -24,12 +24,15 @@ Examples::
 
 Rerunning the same command resumes from ``WORKDIR/checkpoints``. Writes PNG sample grids to
 ``WORKDIR/samples`` and the losses to ``WORKDIR/log.csv``; ``--export`` writes the generators as
-an :class:`~privslam_jax.inpaint.filter.Inpainter` ``.npz`` usable by ``privslam filter``.
+an :class:`~privslam_jax.inpaint.filter.Inpainter` ``.npz`` usable by ``privslam filter``, with the
+inference settings ``--export-flip-average`` and ``--export-prefill-blend`` in its config
+(:class:`~privslam_jax.inpaint.filter.InpainterConfig`; the real-frame checkpoint's are on and 0.8).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -67,6 +70,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frame-stride", type=positive_int, default=1)
     p.add_argument("--workdir", type=Path, required=True)
     p.add_argument("--export", type=Path, help="write the trained Inpainter .npz here")
+    p.add_argument("--export-flip-average", action="store_true",
+                   help="inference setting stored in the exported config: average each fill with the mirrored crop's")
+    p.add_argument("--export-prefill-blend", type=unit_interval, default=1.0,
+                   help="inference setting stored in the exported config: share of the network's fill in the hole, "
+                   "the rest the prefill method at full resolution (1: the network's fill only)")
     p.add_argument("--width", type=positive_int, default=16)
     p.add_argument("--inpaint-width", type=nonnegative_int, default=0,
                    help="the image generator's own width (0: --width); with --init, a wider one than the "
@@ -110,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     from privslam_jax.inpaint.data import CropBank, FolderData, Mixture, RealHoleData, image_paths, object_shapes
-    from privslam_jax.inpaint.filter import PREFILLS, Inpainter
+    from privslam_jax.inpaint.filter import PREFILLS, Inpainter, InpainterConfig
     from privslam_jax.inpaint.train import STAGES, TrainConfig, check_init, train
 
     if a.prefill not in PREFILLS:
@@ -138,6 +146,11 @@ def main(argv: list[str] | None = None) -> int:
                       inpaint_adv_weight=a.inpaint_adv_weight,
                       prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every,
                       devices=a.devices)
+    inference = dict(flip_average=a.export_flip_average, prefill_blend=a.export_prefill_blend)
+    try:  # the exported inference settings, checked before any work
+        InpainterConfig(prefill=a.prefill, **inference)
+    except ValueError as err:
+        p.error(f"argument --export-prefill-blend: {err}")
     init = None
     if a.init is not None:  # before any work: a checkpoint that cannot start this training is refused
         try:
@@ -180,7 +193,8 @@ def main(argv: list[str] | None = None) -> int:
         data = real if data is None else Mixture([real, data], [a.real_weight, 1 - a.real_weight], seed=a.seed)
     trainer = train(cfg, data, a.workdir, max_steps=a.max_steps, init=init, progress=primary)
     if a.export is not None and primary:
-        trainer.inpainter().save(a.export)
+        model = trainer.inpainter()
+        Inpainter(*model.modules, dataclasses.replace(model.config, **inference)).save(a.export)
         print(f"inpainter written to {a.export}")
     return 0
 
