@@ -127,6 +127,11 @@ class TrainConfig:
     """Data parallelism: each batch is split across this many devices, the four networks and their
     optimisers replicated (:mod:`privslam_jax.sharding`); ``batch_size`` must be a multiple of it."""
 
+    @property
+    def g2_width(self) -> int:
+        """The image generator's channel width."""
+        return self.inpaint_width or self.width
+
     def __post_init__(self):
         for stage, steps in self.stages:
             if stage not in STAGES or steps < 0:
@@ -287,11 +292,10 @@ class InpaintTrainer:
     def __init__(self, config: TrainConfig, feature_fn: Callable | None = None):
         c = self.config = config
         rngs = nnx.Rngs(c.seed)
-        w2 = c.inpaint_width or c.width
         self.edge_g = EdgeGenerator(num_residual_blocks=c.num_residual_blocks, width=c.width, rngs=rngs)
-        self.inpaint_g = InpaintGenerator(num_residual_blocks=c.num_residual_blocks, width=w2, rngs=rngs)
+        self.inpaint_g = InpaintGenerator(num_residual_blocks=c.num_residual_blocks, width=c.g2_width, rngs=rngs)
         self.edge_d = Discriminator(2, use_sigmoid=True, width=c.width, rngs=rngs)
-        self.inpaint_d = Discriminator(3, use_sigmoid=False, width=w2, rngs=rngs)
+        self.inpaint_d = Discriminator(3, use_sigmoid=False, width=c.g2_width, rngs=rngs)
         g_tx = _adam(c.lr, c.beta1, c.beta2)
         d_tx = _adam(c.lr * c.d2g_lr, c.beta1, c.beta2)
         g2_tx = _adam(c.lr if c.inpaint_lr is None else c.inpaint_lr,
@@ -387,7 +391,7 @@ def check_init(init: InpainterConfig, config: TrainConfig) -> None:
     """Raise ``ValueError`` unless an inpainter of config ``init`` can start ``config``'s training: the
     same edge-generator width and residual blocks, and an image generator of the same width or up to
     twice as wide (widened by :func:`~privslam_jax.inpaint.widen.widen_inpaint_generator`)."""
-    w2 = config.inpaint_width or config.width
+    w2 = config.g2_width
     if ((init.width, init.num_residual_blocks) != (config.width, config.num_residual_blocks)
             or not init.g2_width <= w2 <= 2 * init.g2_width):
         raise ValueError(f"the init inpainter has width {init.width} (image generator {init.g2_width}) and "
@@ -442,8 +446,8 @@ def train(
     elif init is not None:
         check_init(init.config, config)
         eg, ig = init.modules
-        if config.inpaint_width and config.inpaint_width != init.config.g2_width:  # Net2Net, from the model seed
-            ig = widen_inpaint_generator(ig, config.inpaint_width, seed=config.seed)
+        if config.g2_width != init.config.g2_width:  # Net2Net, from the model seed
+            ig = widen_inpaint_generator(ig, config.g2_width, seed=config.seed)
         nnx.update(trainer.edge_g, nnx.state(eg))
         nnx.update(trainer.inpaint_g, nnx.state(ig))
         if config.residual and not init.config.residual:
