@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from privslam_jax._xla import configure_xla
 
@@ -30,9 +31,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    """A :class:`~privslam_jax.errors.PrivacyWarning` is the command's own message: one line, without
+    the library's file, line and source text; other warnings as Python formats them."""
+    from privslam_jax.errors import PrivacyWarning
+
+    if issubclass(category, PrivacyWarning):
+        return f"{message}\n"
+    return _PYTHON_FORMAT(message, category, filename, lineno, line)
+
+
+_PYTHON_FORMAT = warnings.formatwarning
+
+
 def main(argv: list[str] | None = None) -> int:
     configure_xla()
     args = build_parser().parse_args(argv)
+    warnings.formatwarning = _format_warning
     try:
         if not getattr(args, "owns_out", False):
             return int(args.func(args) or 0)
@@ -50,6 +65,8 @@ def main(argv: list[str] | None = None) -> int:
         message = " ".join(str(err).split())  # one line, whatever the message holds
         print(f"privslam {args.command}: error: {message}", file=sys.stderr)
         return 2
+    finally:
+        warnings.formatwarning = _PYTHON_FORMAT
 
 
 if __name__ == "__main__":

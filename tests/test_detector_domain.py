@@ -126,6 +126,27 @@ def test_filter_refuses_synthetic_detector_on_real_frames(tmp_path, capsys):
                  "--out", str(tmp_path / "out2")]) == 0
 
 
+def test_the_command_shows_the_privacy_warning_as_one_line_of_its_own(tmp_path):
+    """Run as users run it (a process of its own, Python's default warning display): the warning is
+    one ``PRIVACY WARNING: …`` line on stderr, without the library's file, line and source text."""
+    import subprocess
+    import sys
+
+    from privslam_jax.errors import PrivacyWarning
+
+    assert issubclass(PrivacyWarning, UserWarning)
+    weights = _tiny_checkpoint(tmp_path / "syn.npz", domain="synthetic")
+    seq = _real_like_sequence(tmp_path / "real", synthetic=False)
+    run = subprocess.run([sys.executable, "-m", "privslam_jax.cli", "filter", str(seq), "--masks", "detect",
+                          "--detector", str(weights), "--method", "black", "--allow-domain-mismatch",
+                          "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    lines = [ln for ln in run.stderr.splitlines() if "PRIVACY WARNING" in ln]
+    assert len(lines) == 1 and lines[0].startswith("PRIVACY WARNING: the detector "), run.stderr[-2000:]
+    assert "Warning:" not in run.stderr and "sequence.py" not in run.stderr and "check_detector_domain" not in run.stderr
+    assert "PRIVACY WARNING" in run.stdout  # and once more in the summary the command prints
+
+
 def test_detector_default_meta_is_unknown():
     det = Detector(init_yolov8(YOLOv8Config(num_classes=8, scale="tiny")), DetectorConfig())
     assert det.domain == "unknown"

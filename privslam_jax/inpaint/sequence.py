@@ -86,6 +86,8 @@ def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch:
     """
     import warnings
 
+    from privslam_jax.errors import PrivacyWarning
+
     if sequence_is_synthetic:
         return None
     recall = detector.meta.get("card", {}).get("real_recall")
@@ -104,7 +106,7 @@ def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch:
                 "--tta, --conf 0.1 and --propagate 3, or use a stronger detector (docs/detector.md)")
     else:
         return None
-    warnings.warn("PRIVACY WARNING: " + text, UserWarning, stacklevel=2)
+    warnings.warn("PRIVACY WARNING: " + text, PrivacyWarning, stacklevel=2)
     return text
 
 
