@@ -87,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--objects", type=int, default=3, help="object holes per real frame")
     p.add_argument("--repeats", type=int, default=2, help="placements per frame of the evaluation sets")
     p.add_argument("--synthetic-frames", type=int, default=25, help="frames per held-out world (0: skip)")
+    p.add_argument("--without-edge-model", action="store_true",
+                   help="also run every model with its edge generator switched off (ablation: no edges drawn "
+                   "inside the hole, Inpainter.without_edge_model)")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "inpaint_real.md")
     a = p.parse_args(argv)
     shared = shared_dir()
@@ -107,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
                   "edgeconnect (real-domain, plain inference)": Inpainter(*real_model.modules, dataclasses.replace(
                       real_model.config, flip_average=False, prefill_blend=1.0)),
                   "edgeconnect (synthetic-only)": models["edgeconnect (synthetic-only)"]}
+    if a.without_edge_model:
+        models |= {f"{name}, no edge generator": model.without_edge_model() for name, model in models.items()}
     real = shared / "data" / "real"
     shapes = object_shapes(image_paths(real / "kitti_raw_a" / "maskrcnn_masks")[32:])
     sets = {"kitti_raw_a run 2, validation": (sorted((real / "kitti_raw_a" / "frames").glob("00000002[2-5]?.png")),
