@@ -92,18 +92,21 @@ def main(argv: list[str] | None = None) -> int:
                    "inside the hole, Inpainter.without_edge_model)")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "inpaint_real.md")
     a = p.parse_args(argv)
+    specs = a.model or [f"edgeconnect (real-domain)={EMBEDDED_REAL_INPAINTER}",
+                        f"edgeconnect (synthetic-only)={EMBEDDED_INPAINTER}"]
+    models = {}
+    for spec in specs:  # checked before any work and before ../shared is needed
+        name, sep, path = spec.partition("=")
+        if not sep:
+            p.error(f"--model needs NAME=PATH, got {spec!r}")
+        try:
+            models[name] = Inpainter.load(path)
+        except (OSError, ValueError) as err:
+            p.error(f"--model {spec}: {err}")
     shared = shared_dir()
     if shared is None:
         print("needs ../shared (real frames and object masks); nothing to do")
         return 1
-    specs = a.model or [f"edgeconnect (real-domain)={EMBEDDED_REAL_INPAINTER}",
-                        f"edgeconnect (synthetic-only)={EMBEDDED_INPAINTER}"]
-    models = {}
-    for spec in specs:
-        name, sep, path = spec.partition("=")
-        if not sep:
-            p.error(f"--model needs NAME=PATH, got {spec!r}")
-        models[name] = Inpainter.load(path)
     if not a.model:  # what the checkpoint's inference settings (flip average, Telea blend) add
         real_model = models["edgeconnect (real-domain)"]
         models = {"edgeconnect (real-domain)": real_model,

@@ -45,7 +45,7 @@ from privslam_jax.inpaint.filter import PREFILLS, Inpainter, InpainterConfig, re
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 from privslam_jax.inpaint.widen import widen_inpaint_generator
 
-__all__ = ["DataFn", "InpaintTrainer", "TrainConfig", "prepare_batch", "train"]
+__all__ = ["DataFn", "InpaintTrainer", "TrainConfig", "check_init", "prepare_batch", "train"]
 
 DataFn = Callable[[int, int], tuple[np.ndarray, np.ndarray]]
 STAGES = ("edge", "inpaint", "edge_inpaint", "joint")
