@@ -29,6 +29,8 @@ from privslam_jax.edge.client import EdgeError, calibration_message, frame_messa
 from privslam_jax.edge.server import start_server
 from privslam_jax.slam.system import SlamConfig, run_slam
 
+pytestmark = pytest.mark.xla_optimized  # the edge server and client run SLAM on whole sequences (tests/conftest.py)
+
 N = 16
 
 

@@ -10,6 +10,8 @@ from privslam_jax.errors import InputError
 from privslam_jax.slam.frontend import OrbConfig, extract_orb, to_gray_u8
 from privslam_jax.slam.vocabulary import Vocabulary, bow_scores, load_vocabulary, train_vocabulary
 
+pytestmark = pytest.mark.xla_optimized  # SLAM on whole sequences (tests/conftest.py)
+
 
 def _np_hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``(N, M)`` Hamming distances by unpacking bits (numpy only)."""

@@ -19,6 +19,8 @@ import pytest
 
 from privslam_jax._shared import shared_dir
 
+pytestmark = pytest.mark.xla_optimized  # the notebooks train and run SLAM (tests/conftest.py)
+
 _spec = importlib.util.spec_from_file_location("render", Path(__file__).resolve().parents[1] / "notebooks" / "render.py")
 RENDER = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(RENDER)

@@ -19,6 +19,8 @@ from privslam_jax.metrics.privacy import point_recovery_metrics
 from privslam_jax.privacy.lift import fixed_key, random_lift
 from privslam_jax.privacy.optimised_lift import OptimisedLiftConfig, lift_loss, optimised_lift
 
+pytestmark = pytest.mark.xla_optimized  # a long gradient-descent loop (tests/conftest.py)
+
 
 def _street(n=900, seed=0):
     """Two 5 m high façades 8 m apart and the road between them, 16 m long: the surfaces attacks rely on."""

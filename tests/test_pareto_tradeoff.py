@@ -45,6 +45,8 @@ from privslam_jax.tradeoff.pareto import (
     summarize_seed_changes,
 )
 
+pytestmark = pytest.mark.xla_optimized  # the experiment runs SLAM on whole sequences (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 TINY_STEREO = SynthConfig(width=320, height=96, num_frames=3, seed=400001, stereo=True)
 """The small stereo world of ``tests/test_tradeoff_proxy.py`` (one renderer compile per session)."""

@@ -14,6 +14,8 @@ from privslam_jax.data.images import read_image
 from privslam_jax.data.ply import load_line_cloud, load_point_cloud
 from privslam_jax.data.trajectory_io import read_tum_matrices
 
+pytestmark = pytest.mark.xla_optimized  # the pipeline runs SLAM on whole sequences (tests/conftest.py)
+
 
 @pytest.fixture(scope="module")
 def gt_run(tmp_path_factory):

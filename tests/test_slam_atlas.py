@@ -17,6 +17,8 @@ from privslam_jax.metrics.trajectory import ate
 from privslam_jax.slam.system import SlamConfig, run_slam
 from privslam_jax.slam.tracking import motion_deviation
 
+pytestmark = pytest.mark.xla_optimized  # SLAM on whole sequences (tests/conftest.py)
+
 FIRST, BLACK, SECOND = range(0, 70), 25, range(20, 90)
 
 

@@ -13,6 +13,8 @@ import pytest
 from privslam_jax.data.faults import FAULT_KINDS, Fault, inject_fault, recovery_delay
 from privslam_jax.slam.system import SlamConfig, run_slam
 
+pytestmark = pytest.mark.xla_optimized  # SLAM on whole sequences (tests/conftest.py)
+
 FRAMES = [np.full((4, 6), 10 * i, np.uint8) for i in range(10)]
 
 

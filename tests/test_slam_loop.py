@@ -10,6 +10,8 @@ from privslam_jax.data.synthetic import SynthConfig, make_sequence
 from privslam_jax.metrics.trajectory import ate
 from privslam_jax.slam.system import SlamConfig, run_slam
 
+pytestmark = pytest.mark.xla_optimized  # SLAM on whole sequences (tests/conftest.py)
+
 
 @pytest.fixture(scope="module")
 def loop_world():

@@ -13,6 +13,8 @@ from privslam_jax.slam.mapping import stereo_u_right
 from privslam_jax.slam.system import PREFETCH_FRAMES, Slam, SlamConfig, run_slam
 from privslam_jax.types import Camera
 
+pytestmark = pytest.mark.xla_optimized  # SLAM on whole sequences (tests/conftest.py)
+
 N_FRAMES = 12
 
 

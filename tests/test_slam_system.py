@@ -14,6 +14,8 @@ from privslam_jax.metrics.trajectory import ate
 from privslam_jax.slam.system import Slam, SlamConfig, run_slam
 from privslam_jax.types import Camera
 
+pytestmark = pytest.mark.xla_optimized  # SLAM on whole sequences (tests/conftest.py)
+
 N_FRAMES = 8
 
 

@@ -126,6 +126,7 @@ def test_refine_gradient_matches_central_differences(x64, n, stereo, outliers):
         assert abs(float(analytic) - float(fd)) <= 1e-4 * max(abs(float(fd)), 1e-3), (float(analytic), float(fd))
 
 
+@pytest.mark.xla_optimized  # a vmapped and a single compilation of the solve agree to 1e-8 as users compile them
 def test_refine_jacfwd_equals_jacrev_and_batches(x64):
     X, uv, isg, ur = _pose_problem(4, 30, True)
     K = camera_params(CAM, jnp.float64)

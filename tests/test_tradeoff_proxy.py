@@ -45,6 +45,8 @@ from privslam_jax.tradeoff.proxy import (
     summarize_changes,
 )
 
+pytestmark = pytest.mark.xla_optimized  # the proxy runs the alignment over whole sequences (tests/conftest.py)
+
 TINY = SynthConfig(width=320, height=96, num_frames=4, seed=300001)
 """One small world for every test (the renderer compiles once per size)."""
 TINY_STEREO = SynthConfig(width=320, height=96, num_frames=3, seed=400001, stereo=True)

@@ -33,6 +33,8 @@ from privslam_jax.tradeoff.train import (
     train_tradeoff,
 )
 
+pytestmark = pytest.mark.xla_optimized  # training loops (tests/conftest.py)
+
 TINY = InpainterConfig(width=4, num_residual_blocks=1)
 TIGHT = PhotometricConfig(max_iterations=300, function_tolerance=0.0, step_tolerance=1e-12, min_gradient=0.0, levels=2)
 """Solved to float64 rounding, every pixel with valid depth selected (as tests/test_tradeoff_objectives.py);
