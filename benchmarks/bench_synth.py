@@ -14,6 +14,10 @@ Measures, at the given resolution, after compilation (median of ``--runs`` frame
 
 for the monocular and the stereo configuration, plus the compile time of each.  Goal: ≥ 30 FPS
 (DESIGN/issue 2).  Prints a Markdown table.  The machine may be shared: say so when quoting.
+
+``--level0`` runs under ``jax_disable_most_optimizations`` (as most tests do, ``tests/conftest.py``)
+and adds, beside the renderer as shipped (compiled with :data:`privslam_jax._xla.OPTIMISED`), the
+same function jitted without that pin: what level 0 would cost the renderer.
 """
 
 from __future__ import annotations
@@ -40,15 +44,15 @@ def _median_ms(fn, n, clock=time.perf_counter):
     return 1000 * statistics.median(ts)
 
 
-def bench(stereo: bool, width: int, height: int, runs: int) -> dict:
+def bench(stereo: bool, width: int, height: int, runs: int, render=render_views) -> dict:
     seq = make_sequence(SynthConfig(width=width, height=height, num_frames=max(runs, 2), seed=0, stereo=stereo))
     kw = {"width": width, "height": height, **seq._static_kw()}
     inputs = [seq.frame_inputs(i) for i in range(runs)]
     t = time.perf_counter()
-    jax.block_until_ready(render_views(**inputs[0], **kw))
+    jax.block_until_ready(render(**inputs[0], **kw))
     compile_s = time.perf_counter() - t
-    device = _median_ms(lambda i: jax.block_until_ready(render_views(**inputs[i], **kw)), runs)
-    device_cpu = _median_ms(lambda i: jax.block_until_ready(render_views(**inputs[i], **kw)), runs, time.process_time)
+    device = _median_ms(lambda i: jax.block_until_ready(render(**inputs[i], **kw)), runs)
+    device_cpu = _median_ms(lambda i: jax.block_until_ready(render(**inputs[i], **kw)), runs, time.process_time)
     host = _median_ms(lambda i: seq.frame_inputs(i), runs)
     frame = _median_ms(lambda i: seq[i], runs)
     return {"compile_s": compile_s, "device_ms": device, "device_cpu_ms": device_cpu, "host_ms": host, "frame_ms": frame}
@@ -59,16 +63,24 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=192)
     ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--level0", action="store_true", help="under jax_disable_most_optimizations, with and without the pin")
     args = ap.parse_args()
+    renders = {"": render_views}
+    if args.level0:
+        jax.config.update("jax_disable_most_optimizations", True)
+        renders = {" (shipped, optimised)": render_views, " (level 0)": jax.jit(
+            render_views.__wrapped__, static_argnames=("width", "height", "layout", "steps", "mb", "me"))}
     print(f"Synthetic world rendering at {args.width}×{args.height}, median of {args.runs} frames "
           f"({jax.devices()[0].platform}, {jax.__version__})\n")
     print("| cameras | compile (s) | device render (ms) | device FPS | device CPU time (ms, all threads) "
           "| host inputs (ms) | frame incl. transfer (ms) | FPS |")
     print("|---|---|---|---|---|---|---|---|")
     for stereo in (False, True):
-        r = bench(stereo, args.width, args.height, args.runs)
-        print(f"| {'stereo' if stereo else 'mono'} | {r['compile_s']:.1f} | {r['device_ms']:.1f} | "
-              f"{1000 / r['device_ms']:.1f} | {r['device_cpu_ms']:.1f} | {r['host_ms']:.2f} | {r['frame_ms']:.1f} | {1000 / r['frame_ms']:.1f} |")
+        for label, render in renders.items():
+            r = bench(stereo, args.width, args.height, args.runs, render)
+            print(f"| {'stereo' if stereo else 'mono'}{label} | {r['compile_s']:.1f} | {r['device_ms']:.1f} | "
+                  f"{1000 / r['device_ms']:.1f} | {r['device_cpu_ms']:.1f} | {r['host_ms']:.2f} | {r['frame_ms']:.1f} | "
+                  f"{1000 / r['frame_ms']:.1f} |")
 
 
 if __name__ == "__main__":

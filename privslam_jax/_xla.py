@@ -27,6 +27,15 @@ from pathlib import Path
 
 _DEFAULT_XLA_FLAGS = "--xla_cpu_experimental_ynn_fusion_type="
 
+OPTIMISED = {"xla_backend_optimization_level": 3, "xla_llvm_disable_expensive_passes": False}
+"""``jax.jit(..., compiler_options=OPTIMISED)``: XLA's CPU defaults, kept when ``jax_disable_most_optimizations``
+(``JAX_DISABLE_MOST_OPTIMIZATIONS``) turns them off elsewhere.  For programs whose run time dominates
+their compile time wherever they are called: the synthetic renderer (at level 0 a 640×192 frame takes
+216 ms of device time instead of 22 ms while compiling in 3.1 s instead of 5.3 s, and its pixels
+change in the last bits; ``python benchmarks/bench_synth.py --level0``, 2 cores) and EdgeConnect's
+forward pass (slower a frame at level 0, compiling no faster).  The test suite turns the
+optimisations off for most tests (``tests/conftest.py``)."""
+
 
 def configure_xla() -> None:
     """Set ``XLA_FLAGS``, ``OPENBLAS_NUM_THREADS`` and the compilation cache to the project defaults

@@ -243,3 +243,25 @@ def test_parse_seeds_expands_inclusive_ranges_and_rejects_garbage():
     assert parse_seeds("5") == [5]
     with pytest.raises(ValueError, match="bad seed list"):
         parse_seeds("1-x")
+
+
+def test_renders_as_users_compile_it_when_tests_turn_xla_optimisations_off(tmp_path):
+    """Most tests compile without XLA's optimisations (``tests/conftest.py``); the renderer keeps them
+    (``privslam_jax._xla.OPTIMISED``), so a frame rendered here equals, bit for bit, the frame of a
+    fresh interpreter with JAX's defaults.  Jitted at level 0, 4453 colour values of this frame differ
+    (by up to 0.005)."""
+    import os
+    import subprocess
+    import sys
+
+    import jax
+
+    assert jax.config.read("jax_disable_most_optimizations")  # what this test is about
+    cfg = SynthConfig(width=160, height=48, num_frames=3, seed=5)
+    code = ("import sys, numpy as np\nfrom privslam_jax.data import SynthConfig, make_sequence\n"
+            f"np.save(sys.argv[1], make_sequence({cfg!r})[1].image)\n")
+    env = dict(os.environ, JAX_DISABLE_MOST_OPTIMIZATIONS="0")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "default.npy")], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    np.testing.assert_array_equal(make_sequence(cfg)[1].image, np.load(tmp_path / "default.npy"))

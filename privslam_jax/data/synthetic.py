@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from privslam_jax._xla import OPTIMISED
 from privslam_jax.data import _synth_objects as so
 from privslam_jax.data._synth_path import CityLayout, make_loop_path, make_path
 from privslam_jax.data._synth_shade import object_color, static_color, static_fields, static_wall
@@ -233,12 +234,14 @@ def _boxes(inst, slot_ids):
     return jnp.stack([x1, y1, x2, y2], axis=1).astype(jnp.float32), valid
 
 
-@functools.partial(jax.jit, static_argnames=("width", "height", "layout", "steps", "mb", "me"))
+@functools.partial(jax.jit, static_argnames=("width", "height", "layout", "steps", "mb", "me"), compiler_options=OPTIMISED)
 def render_views(cams, intr, prisms, ells, slot_ids, salt, *, width, height, layout, steps, mb, me):
     """Jitted core: render ``V`` level cameras ``cams (V, 4) = (x, y, z, yaw)`` in the city frame.
 
     Returns ``{"views": [per-view dict of maps], "boxes": (K, 4), "box_valid": (K,)}`` (boxes of
-    the first view); colour maps are channel-first ``(3, H, W)``.
+    the first view); colour maps are channel-first ``(3, H, W)``.  Compiled with XLA's optimisations
+    even under ``jax_disable_most_optimizations`` (:data:`privslam_jax._xla.OPTIMISED`): rendering
+    dominates whatever calls it, and the pixels stay those of the default compilation.
     """
     uu = jnp.arange(width, dtype=jnp.float32)
     vv = jnp.broadcast_to(jnp.arange(height, dtype=jnp.float32)[:, None], (height, width))
@@ -247,7 +250,7 @@ def render_views(cams, intr, prisms, ells, slot_ids, salt, *, width, height, lay
     return {"views": views, "boxes": boxes, "box_valid": valid}
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "steps", "mb", "me"))
+@functools.partial(jax.jit, static_argnames=("layout", "steps", "mb", "me"), compiler_options=OPTIMISED)
 def _cast(cam, intr, uv, prisms, ells, salt, *, layout, steps, mb, me):
     fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
     o = cam[0:3]

@@ -28,6 +28,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float, Shaped
 
+from privslam_jax._xla import OPTIMISED
 from privslam_jax.data.images import as_unit_image, like_input
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.crops import crop_box, extract, paste_back
@@ -195,7 +196,7 @@ class Inpainter:
             eg, ig = nnx.merge(self.graphdef, state)
             return inpaint_inference(eg, ig, rgb, grey, edges, hole, edge_hole, config, use_edge_model, hole_fill)
 
-        self._run = jax.jit(run)
+        self._run = jax.jit(run, compiler_options=OPTIMISED)  # run-bound (privslam_jax._xla.OPTIMISED)
 
     @classmethod
     def embedded(cls, domain: str = "synthetic") -> Inpainter:
