@@ -15,7 +15,9 @@
   it; for subprocesses ``JAX_DISABLE_MOST_OPTIMIZATIONS``) except in tests marked ``xla_optimized``:
   most tests run each program a few times, and compiling it takes longer than running it.  The
   marked ones run programs long (SLAM on whole sequences, training loops, the pipeline) or compare
-  two compilations of one solve to float64 rounding; they run the code as users compile it.
+  two compilations of one solve to float64 rounding; they run the code as users compile it.  The
+  synthetic renderer and EdgeConnect's forward keep the optimisations everywhere
+  (``privslam_jax._xla.OPTIMISED``), so every test renders the frames users get.
   Measured on 2 cores (``benchmarks/suite_time.py``, docs/testing.md): the README's test command
   took 992 s instead of 1180 s with every test optimised (in-process compilation 664 s, not 925 s).
 """
