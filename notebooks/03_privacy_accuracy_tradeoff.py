@@ -32,7 +32,8 @@
 #    (`train/tradeoff.py` runs the same loop for real),
 # 3. shows the Pareto front of `experiments/pareto_tradeoff.py` from its results file.
 #
-# Set `PRIVSLAM_NB_TINY=1` for a short run (the test suite does): a smaller world and two steps.
+# Set `PRIVSLAM_NB_TINY=1` for a short run (the test suite does): a smaller world, two steps and a
+# one-level alignment.
 
 # %%
 import dataclasses
@@ -58,6 +59,8 @@ from privslam_jax.tradeoff.train import TradeoffConfig, train_tradeoff
 TINY = os.environ.get("PRIVSLAM_NB_TINY", "0") == "1"
 config = TradeoffConfig(steps=2 if TINY else 20, frames_per_world=8 if TINY else 60, world_seeds=(1000,),
                         checkpoint_every=1000)
+if TINY:  # the alignment on one pyramid level instead of three: smaller programs to compile
+    config = dataclasses.replace(config, alignment=dataclasses.replace(config.alignment, levels=1))
 print(("tiny run" if TINY else "full run") + f": {config.width}x{config.height} frames, {config.steps} steps")
 
 # %% [markdown]

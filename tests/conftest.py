@@ -45,6 +45,7 @@ import pytest  # noqa: E402
 from privslam_jax._shared import shared_dir  # noqa: E402
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
+_OPTIMISATION_MODE = jax.make_user_context(default_value=False)  # jit cache key: the mode the program was compiled in
 
 
 def pytest_unconfigure(config):
@@ -95,9 +96,10 @@ def pytest_runtest_setup(item):
     before the test's fixtures are made, so that programs a module fixture compiles follow the test."""
     fast = item.get_closest_marker("xla_optimized") is None
     if fast != jax.config.read("jax_disable_most_optimizations"):
-        # the setting is not part of jit's in-memory cache key: without this, a program compiled
-        # for an earlier test in the other mode would be reused (the persistent cache keys on it)
-        jax.clear_caches()
+        # the setting is not part of jit's in-memory cache key (the persistent cache keys on it):
+        # _OPTIMISATION_MODE is, so a program traced and compiled in one mode is not reused in the
+        # other, and each mode keeps its programs when tests switch back and forth
+        _OPTIMISATION_MODE.set_global(fast)
         jax.config.update("jax_disable_most_optimizations", fast)
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1" if fast else "0"
 

@@ -73,7 +73,7 @@ EXPECTED = {
         # (+ the real frame: original / mask / Telea / EdgeConnect-real)
         "figures": 5 if HAS_KITTI_RAW or HAS_KITTI else 4,
     },
-    # TradeoffConfig at 320x96 with steps=2 and 8-frame worlds; the privacy loss of a frame whose
+    # TradeoffConfig at 320x96 with steps=2, 8-frame worlds and a one-level alignment; the privacy loss of a frame whose
     # objects are all hidden sits at its floor tau*log(A*C) = 0.0962 (docs/tradeoff.md).
     "03_privacy_accuracy_tradeoff": {
         "stdout": [
