@@ -4,6 +4,10 @@ Command::
 
     python benchmarks/suite_time.py            # runs the README's test command, then prints the table
     python benchmarks/suite_time.py --from F   # only summarise an earlier run's JSON lines
+    python benchmarks/suite_time.py --from F --write-order tests/file_seconds.json
+
+``--write-order`` writes each file's wall seconds, the costs by which ``tests/conftest.py`` hands the
+files to the xdist workers longest first (rerun it when files are added or their cost changes much).
 
 The suite runs with ``PRIVSLAM_TEST_TIMES`` set (``tests/conftest.py`` then appends one JSON line per
 test with its wall time, start time, xdist worker and JAX's compile-event seconds).  Compile seconds are those of the test
@@ -26,6 +30,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--from", dest="source", help="JSON lines of an earlier run (skip running the suite)")
     ap.add_argument("--top", type=int, default=25, help="files to list")
+    ap.add_argument("--write-order", type=Path, help="write {file: wall seconds} here (tests/file_seconds.json)")
     args = ap.parse_args()
     path = Path(args.source) if args.source else Path(tempfile.mkdtemp()) / "times.jsonl"
     if not args.source:
@@ -57,6 +62,12 @@ def main() -> None:
     for name, (busy, end) in sorted(workers.items()):
         print(f"worker {name}: busy {busy:.0f} s, last test ended at {end:.0f} s")
     print(f"per-test rows: {path}")
+    if args.write_order:
+        seconds = {name: round(f["wall"], 1) for name, f in sorted(files.items(), key=lambda kv: -kv[1]["wall"])}
+        tmp = args.write_order.with_suffix(".tmp")
+        tmp.write_text(json.dumps(seconds, indent=0) + "\n")
+        tmp.replace(args.write_order)
+        print(f"file costs: {args.write_order}")
 
 
 if __name__ == "__main__":

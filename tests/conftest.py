@@ -6,6 +6,7 @@
   annotated function of the package (pyproject ``--jaxtyping-packages``).
 * ``shared`` fixture: the ``../shared`` folder, or a skip with the reason.
 * ``count_compiles`` fixture: a context manager that counts the XLA programs compiled inside it.
+* files run longest first (``tests/file_seconds.json``), so the xdist workers end together.
 * one persistent XLA compilation cache per test run (a temporary folder, removed at the end, instead
   of the user cache ``configure_xla`` would pick), shared by the xdist workers and every subprocess
   they start: a program compiled once (the renderer, a train step, a CLI stage) is loaded, not
@@ -25,10 +26,12 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 from privslam_jax._xla import configure_xla
 
@@ -104,7 +107,26 @@ def pytest_runtest_setup(item):
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1" if fast else "0"
 
 
+_FILE_SECONDS = Path(__file__).with_name("file_seconds.json")
+"""Each test file's measured wall seconds (``benchmarks/suite_time.py --write-order``)."""
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """Files in the order of their measured cost, longest first (``tests/file_seconds.json``; a file
+    not listed counts as 0 s); the tests of a file keep their order (a stable sort).  With
+    ``--dist loadfile``, xdist hands out the files in this order (``pytest_configure`` turns off its
+    own reordering by test count): the longest-processing-time-first rule, so the workers end
+    together instead of one finishing a long file of few tests while the other idles.  Simulated on
+    the per-test times of a run (``suite_time.py``): 986 s instead of 1025 s for two workers."""
+    if _FILE_SECONDS.is_file():
+        seconds = json.loads(_FILE_SECONDS.read_text())
+        items.sort(key=lambda item: -seconds.get(item.nodeid.split("::")[0], 0.0))
+
+
 def pytest_configure(config):
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist: keep the order above
+        config.option.loadscopereorder = False
     if os.environ.get("PRIVSLAM_TEST_TIMES"):  # benchmarks/suite_time.py: per-test wall and compile seconds
         config.pluginmanager.register(_TestTimes(os.environ["PRIVSLAM_TEST_TIMES"]))
 
