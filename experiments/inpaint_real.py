@@ -23,9 +23,11 @@ Command::
     python experiments/inpaint_real.py [--model NAME=PATH ...] [--out results/inpaint_real.md]
 
 Default models: the embedded real-domain checkpoint (with its inference settings: the mean of the
-fill and the mirrored crop's mirrored fill, blended 0.8 : 0.2 with Telea at full resolution), the same
-weights without those settings ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 10 min on
-2 cores. Needs ``../shared`` (exits with a message without it).
+fill and the mirrored crop's mirrored fill, blended with Telea at full resolution, the network's share
+0.85 · (1 − exp(−d / 5 px)) at distance d from the visible pixels), the same weights with the constant
+share 0.8 of the settings until 2026-12-07, the same weights without any of them ("plain inference"),
+and the synthetic-only checkpoint. Runtime ≈ 13 min on 2 cores. Needs ``../shared`` (exits with a
+message without it).
 """
 
 from __future__ import annotations
@@ -110,8 +112,10 @@ def main(argv: list[str] | None = None) -> int:
     if not a.model:  # what the checkpoint's inference settings (flip average, Telea blend) add
         real_model = models["edgeconnect (real-domain)"]
         models = {"edgeconnect (real-domain)": real_model,
+                  "edgeconnect (real-domain, constant blend 0.8)": Inpainter(*real_model.modules, dataclasses.replace(
+                      real_model.config, prefill_blend=0.8, prefill_blend_distance=0.0)),
                   "edgeconnect (real-domain, plain inference)": Inpainter(*real_model.modules, dataclasses.replace(
-                      real_model.config, flip_average=False, prefill_blend=1.0)),
+                      real_model.config, flip_average=False, prefill_blend=1.0, prefill_blend_distance=0.0)),
                   "edgeconnect (synthetic-only)": models["edgeconnect (synthetic-only)"]}
     if a.without_edge_model:
         models |= {f"{name}, no edge generator": model.without_edge_model() for name, model in models.items()}
@@ -127,7 +131,10 @@ def main(argv: list[str] | None = None) -> int:
           "Models: " + ", ".join(f"{n} = `{Path(q).name}`" for n, q in
                                  (s.partition('=')[::2] for s in specs)) + "."
           + ("" if a.model else " The real-domain checkpoint runs with its inference settings (flip average, "
-                                 "prefill blend 0.8); 'plain inference' is the same weights without them."), ""]
+                                 "Telea blend with the network's share 0.85 · (1 − exp(−d / 5 px)) at distance d from "
+                                 "the visible pixels); 'constant blend 0.8' is the same weights with the share 0.8 "
+                                 "everywhere (the settings until 2026-12-07); 'plain inference' is the same weights "
+                                 "without any of them."), ""]
     t0 = time.perf_counter()
     for set_name, (paths, repeats, seed) in sets.items():
         res = run_set(lambda paths=paths, repeats=repeats, seed=seed: real_hole_cases(

@@ -242,6 +242,8 @@ TRAIN_CASES = [
     ("inpaint", [*INPAINT, "--inpaint-width", "-1"], "--inpaint-width"),
     ("inpaint", [*INPAINT, "--export-prefill-blend", "1.5"], "--export-prefill-blend"),
     ("inpaint", [*INPAINT, "--export-prefill-blend", "0.8"], "--export-prefill-blend"),  # the white prefill has no blend
+    ("inpaint", [*INPAINT, "--export-prefill-blend-distance", "-1"], "--export-prefill-blend-distance"),
+    ("inpaint", [*INPAINT, "--export-prefill-blend-distance", "5"], "--export-prefill-blend-distance"),  # nor with white
     ("inpaint", [*INPAINT, "--init", MISSING], "--init"),
     ("inpaint", [*INPAINT, "--init", str(REPO / "privslam_jax/assets/inpainter_cpu16.npz"), "--inpaint-width", "40"], "--init"),
     ("inpaint", [*INPAINT, "--devices", "0"], "--devices"),

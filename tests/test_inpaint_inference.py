@@ -1,9 +1,11 @@
-"""Inference settings of an inpainter checkpoint: ``InpainterConfig.flip_average`` and ``prefill_blend``.
+"""Inference settings of an inpainter checkpoint: ``InpainterConfig.flip_average``, ``prefill_blend`` and
+``prefill_blend_distance``.
 
 References: mirror equivariance (a property the plain network lacks), the public
 ``filter_frame`` of the same weights without the setting combined with
-:func:`privslam_jax.inpaint.baselines.fill` of the whole frame, and the differentiable
-``filter_image`` against ``filter_frame`` (as ``tests/test_filter_image.py`` does for the defaults).
+:func:`privslam_jax.inpaint.baselines.fill` of the whole frame (and a brute-force nearest visible
+pixel for the distance-dependent share), and the differentiable ``filter_image`` against
+``filter_frame`` (as ``tests/test_filter_image.py`` does for the defaults).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import pytest
 
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.differentiable import FilterModel, filter_image
-from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame, inpaint_inference
+from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame, hole_distance, inpaint_inference, network_share
 
 TINY = InpainterConfig(width=4, num_residual_blocks=1, prefill="telea", residual=True)
 
@@ -87,11 +89,41 @@ def test_prefill_blend_mixes_with_the_full_resolution_prefill(blend):
     assert np.array_equal(filter_frame(other, masks, inpainter=_with(inp, prefill_blend=blend)), got)
 
 
-def test_filter_image_equals_filter_frame_with_both_settings():
+def test_distance_blend_follows_the_distance_to_the_visible_pixels():
+    """With ``prefill_blend_distance = τ`` the network's share of a hidden pixel is ``a · (1 − exp(−d/τ))``,
+    ``d`` its Euclidean distance to the nearest visible pixel (brute force): ``filter_frame``
+    = that share of the same weights' fill plus the rest of OpenCV Telea of the whole frame; the
+    share is 0 on no hidden pixel, tends to ``a`` deep inside; the output ignores every hidden pixel."""
+    inp = Inpainter.init(TINY, seed=2)
+    img, masks = _frame()
+    hidden = masks.any(axis=0)
+    a, tau = 0.85, 5.0
+    cfg = dataclasses.replace(TINY, prefill_blend=a, prefill_blend_distance=tau)
+    share = network_share(hidden, cfg)
+    vis, hid = np.argwhere(~hidden), np.argwhere(hidden)  # brute force: the nearest visible pixel of each
+    d = np.zeros(hidden.shape)
+    d[hidden] = [np.sqrt(((vis - q) ** 2).sum(axis=1).min()) for q in hid]
+    np.testing.assert_allclose(hole_distance(hidden), d, rtol=1e-6)
+    np.testing.assert_allclose(share, a * (1 - np.exp(-d / tau)), rtol=1e-5, atol=1e-6)
+    assert np.all(share[~hidden] == 0) and 0 < share[hidden].min() < 0.2 * a and share.max() > 0.95 * a
+    assert network_share(hidden, TINY) == 1.0 and network_share(hidden, dataclasses.replace(TINY, prefill_blend=a)) == a
+    plain = filter_frame(img, masks, inpainter=inp)
+    got = filter_frame(img, masks, inpainter=_with(inp, prefill_blend=a, prefill_blend_distance=tau))
+    w = (a * (1 - np.exp(-d / tau)))[..., None]
+    want = w * plain + (1 - w) * baselines.fill(img, hidden, "telea")
+    np.testing.assert_allclose(got[hidden], want[hidden], atol=2e-6)
+    assert np.array_equal(got[~hidden], img[~hidden])
+    assert np.abs(got - filter_frame(img, masks, inpainter=_with(inp, prefill_blend=a))).max() > 1e-3  # not the constant share
+    other = np.where(hidden[..., None], np.random.default_rng(1).random(img.shape), img).astype(np.float32)
+    assert np.array_equal(filter_frame(other, masks, inpainter=_with(inp, prefill_blend=a, prefill_blend_distance=tau)), got)
+
+
+@pytest.mark.parametrize("distance", [0.0, 5.0])
+def test_filter_image_equals_filter_frame_with_both_settings(distance):
     """The differentiable filter runs the same inference: parity with ``filter_frame`` (overlapping
-    masks, flip and blend on), the outside bit-identical, no dependence on hidden pixels, and a
-    finite gradient in the parameters."""
-    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.7)
+    masks, flip and blend on, the blend constant or by distance), the outside bit-identical, no
+    dependence on hidden pixels, and a finite gradient in the parameters."""
+    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.7, prefill_blend_distance=distance)
     model, params = FilterModel.split(inp)
     img, masks = _frame()
     hidden = masks.any(axis=0)
@@ -111,7 +143,12 @@ def test_settings_are_checked_and_saved(tmp_path):
         InpainterConfig(prefill="telea", prefill_blend=1.5)
     with pytest.raises(ValueError, match="not white"):
         InpainterConfig(prefill_blend=0.5)
-    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.8)
+    with pytest.raises(ValueError, match="not white"):
+        InpainterConfig(prefill_blend_distance=5.0)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match=">= 0 pixels and finite"):
+            InpainterConfig(prefill="telea", prefill_blend_distance=bad)
+    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.8, prefill_blend_distance=5.0)
     inp.save(tmp_path / "m.npz")
     back = Inpainter.load(tmp_path / "m.npz")
     assert back.config == inp.config

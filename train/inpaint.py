@@ -25,8 +25,9 @@ Examples::
 Rerunning the same command resumes from ``WORKDIR/checkpoints``. Writes PNG sample grids to
 ``WORKDIR/samples`` and the losses to ``WORKDIR/log.csv``; ``--export`` writes the generators as
 an :class:`~privslam_jax.inpaint.filter.Inpainter` ``.npz`` usable by ``privslam filter``, with the
-inference settings ``--export-flip-average`` and ``--export-prefill-blend`` in its config
-(:class:`~privslam_jax.inpaint.filter.InpainterConfig`; the real-frame checkpoint's are on and 0.8).
+inference settings ``--export-flip-average``, ``--export-prefill-blend`` and
+``--export-prefill-blend-distance`` in its config (:class:`~privslam_jax.inpaint.filter.InpainterConfig`;
+the real-frame checkpoint's are on, 0.85 and 5 px).
 """
 
 from __future__ import annotations
@@ -75,6 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--export-prefill-blend", type=unit_interval, default=1.0,
                    help="inference setting stored in the exported config: share of the network's fill in the hole, "
                    "the rest the prefill method at full resolution (1: the network's fill only)")
+    p.add_argument("--export-prefill-blend-distance", type=nonnegative_float, default=0.0, metavar="PX",
+                   help="inference setting stored in the exported config: if > 0, the network's share at distance d "
+                   "(px) from the visible pixels is --export-prefill-blend * (1 - exp(-d / PX)) (0: constant share)")
     p.add_argument("--width", type=positive_int, default=16)
     p.add_argument("--inpaint-width", type=nonnegative_int, default=0,
                    help="the image generator's own width (0: --width); with --init, a wider one than the "
@@ -146,11 +150,12 @@ def main(argv: list[str] | None = None) -> int:
                       inpaint_adv_weight=a.inpaint_adv_weight,
                       prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every,
                       devices=a.devices)
-    inference = dict(flip_average=a.export_flip_average, prefill_blend=a.export_prefill_blend)
+    inference = dict(flip_average=a.export_flip_average, prefill_blend=a.export_prefill_blend,
+                     prefill_blend_distance=a.export_prefill_blend_distance)
     try:  # the exported inference settings, checked before any work
         InpainterConfig(prefill=a.prefill, **inference)
     except ValueError as err:
-        p.error(f"argument --export-prefill-blend: {err}")
+        p.error(f"argument --export-prefill-blend / --export-prefill-blend-distance: {err}")
     init = None
     if a.init is not None:  # before any work: a checkpoint that cannot start this training is refused
         try:

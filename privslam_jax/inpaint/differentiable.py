@@ -62,7 +62,7 @@ from jaxtyping import Array, Bool, Float, PyTree
 from privslam_jax.data.images import as_unit_image
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.crops import CropBox, crop_box, extract
-from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, inpaint_inference
+from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, inpaint_inference, network_share
 from privslam_jax.inpaint.masks import GREY_WEIGHTS, dilate, edge_band, safe_canny, to_grey
 
 __all__ = ["FilterConstants", "FilterGeometry", "FilterModel", "apply_filter", "filter_constants", "filter_geometry",
@@ -99,7 +99,11 @@ class FilterConstants(NamedTuple):
     """What the image generator sees inside each crop's hole (``InpainterConfig.prefill``)."""
     frame_fill: Float[np.ndarray | Array, "H W 3"] | None = None
     """The prefill of the whole frame at full resolution, which the output is blended with when
-    ``InpainterConfig.prefill_blend < 1`` (else None)."""
+    ``InpainterConfig.blends_prefill`` (else None)."""
+    frame_share: Float[np.ndarray | Array, "H W"] | None = None
+    """The network's share of each pixel in that blend when it depends on the distance to the visible
+    pixels (``InpainterConfig.prefill_blend_distance > 0``, :func:`~privslam_jax.inpaint.filter.network_share`;
+    else None: the constant ``prefill_blend``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -245,8 +249,9 @@ def filter_constants(
         rgb_s, hole_s = extract(rgb, hidden, crop_box(m, config.crop_pad, config.min_crop), s)
         edges[k] = safe_canny(to_grey(rgb_s), hole_s, sigma=config.sigma)[0]
         fill[k] = baselines.fill(rgb_s, hole_s, config.prefill)
-    frame_fill = None if config.prefill_blend == 1.0 else baselines.fill(rgb, hidden, config.prefill).astype(np.float32)
-    return FilterConstants(edges, fill, frame_fill)
+    frame_fill = baselines.fill(rgb, hidden, config.prefill).astype(np.float32) if config.blends_prefill else None
+    frame_share = network_share(hidden, config) if config.prefill_blend_distance > 0.0 else None
+    return FilterConstants(edges, fill, frame_fill, frame_share)
 
 
 def filter_image(
@@ -283,7 +288,8 @@ def filter_image(
         rgb = jnp.repeat(image[..., None], 3, axis=-1) if image.ndim == 2 else image
         shapes = FilterConstants(jax.ShapeDtypeStruct((k, s, s), jnp.float32),
                                  jax.ShapeDtypeStruct((k, s, s, 3), jnp.float32),
-                                 None if cfg.prefill_blend == 1.0 else jax.ShapeDtypeStruct((h, w, 3), jnp.float32))
+                                 jax.ShapeDtypeStruct((h, w, 3), jnp.float32) if cfg.blends_prefill else None,
+                                 jax.ShapeDtypeStruct((h, w), jnp.float32) if cfg.prefill_blend_distance > 0.0 else None)
         constants = jax.pure_callback(lambda x: filter_constants(np.asarray(x), masks, cfg), shapes,
                                       jax.lax.stop_gradient(rgb), vmap_method="sequential")
     if np.shape(constants.edges) != (k, s, s) or np.shape(constants.fill) != (k, s, s, 3):
@@ -327,11 +333,17 @@ def apply_filter(
     acc = jnp.sum(jnp.where(g.own[..., None], paste, zero), axis=0)
     count = jnp.sum(g.own, axis=0).astype(dtype)
     blend = acc / jnp.maximum(count, 1.0)[..., None]
-    a = model.config.prefill_blend
-    if a != 1.0:  # mixed with the full-resolution prefill of the frame (InpainterConfig.prefill_blend)
+    cfg = model.config
+    if cfg.blends_prefill:  # mixed with the full-resolution prefill of the frame (InpainterConfig.prefill_blend)
         if constants.frame_fill is None or np.shape(constants.frame_fill) != (h, w, 3):
-            raise ValueError(f"this inpainter blends with the frame's prefill (prefill_blend {a}): constants need "
-                             f"frame_fill of shape {(h, w, 3)} (filter_constants makes it)")
+            raise ValueError(f"this inpainter blends with the frame's prefill (prefill_blend {cfg.prefill_blend}): "
+                             f"constants need frame_fill of shape {(h, w, 3)} (filter_constants makes it)")
+        a = cfg.prefill_blend
+        if cfg.prefill_blend_distance > 0.0:
+            if constants.frame_share is None or np.shape(constants.frame_share) != (h, w):
+                raise ValueError(f"this inpainter's blend depends on the distance to the visible pixels: constants "
+                                 f"need frame_share of shape {(h, w)} (filter_constants makes it)")
+            a = jax.lax.stop_gradient(cast(constants.frame_share))[..., None]
         blend = a * blend + (1.0 - a) * jax.lax.stop_gradient(cast(constants.frame_fill))
     out = jnp.where(g.hidden[..., None], blend, rgb)
     return out[..., 0] if image.ndim == 2 else out

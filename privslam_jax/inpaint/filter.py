@@ -13,7 +13,8 @@ leak-free edges of :func:`~privslam_jax.inpaint.masks.safe_canny`):
 ``y = G_img([rgb·(1−m) + m, ê])``, output ``y·m + rgb·(1−m)``.  A checkpoint may add inference
 settings (:class:`InpainterConfig`): the mean with the mirrored crop's mirrored fill
 (``flip_average``, :func:`inpaint_inference`) and, on the frame, a blend with the prefill method run at
-full resolution (``prefill_blend``).
+full resolution (``prefill_blend``, by distance to the visible pixels with ``prefill_blend_distance``:
+:func:`network_share`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float, Shaped
+from scipy import ndimage
 
 from privslam_jax._xla import OPTIMISED
 from privslam_jax.data.images import as_unit_image, like_input
@@ -36,7 +38,7 @@ from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGe
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 
 __all__ = ["EMBEDDED_INPAINTER", "EMBEDDED_REAL_INPAINTER", "EMBEDDED_TRADEOFF_INPAINTER", "FILTER_METHODS", "Inpainter",
-           "InpainterConfig", "edgeconnect_forward", "filter_frame", "inpaint_inference"]
+           "InpainterConfig", "edgeconnect_forward", "filter_frame", "hole_distance", "inpaint_inference", "network_share"]
 
 INPAINTER_METHODS: tuple[str, ...] = ("edgeconnect", "tradeoff")
 """Filter methods run by an EdgeConnect :class:`Inpainter`: ``"tradeoff"`` is the same network with the
@@ -90,7 +92,15 @@ class InpainterConfig:
     frame at full resolution (:func:`privslam_jax.inpaint.baselines.fill`, from the visible pixels only).
     Below 1 it mixes the two fills: the network's is right on average but blurred by the model size,
     the full-resolution prefill keeps fine detail, and their errors are partly independent. 1 keeps
-    the network's fill. As :attr:`flip_average` for training."""
+    the network's fill. As :attr:`flip_average` for training. With :attr:`prefill_blend_distance` it
+    is the network's share deep inside the hole only."""
+    prefill_blend_distance: float = 0.0
+    """Inference only, in frame pixels: if positive, the network's share of a hidden pixel at Euclidean
+    distance ``d`` from the nearest visible pixel is ``prefill_blend · (1 − exp(−d / prefill_blend_distance))``
+    (:func:`network_share`) instead of the constant ``prefill_blend``: next to the visible pixels the
+    full-resolution prefill, which continues them, is the better estimate; deep inside the hole the
+    network's. 0 keeps the constant share. A function of the masks only, so still independent of every
+    hidden pixel."""
 
     def __post_init__(self):
         if self.prefill not in PREFILLS:
@@ -99,8 +109,16 @@ class InpainterConfig:
             raise ValueError(f"inpaint_width must be >= 0 (0: width), got {self.inpaint_width}")
         if not 0.0 <= self.prefill_blend <= 1.0:
             raise ValueError(f"prefill_blend must lie in [0, 1], got {self.prefill_blend}")
-        if self.prefill_blend != 1.0 and self.prefill == "white":
-            raise ValueError("prefill_blend < 1 needs a prefill method (telea, ns, gray, black), not white")
+        if not 0.0 <= self.prefill_blend_distance < float("inf"):
+            raise ValueError(f"prefill_blend_distance must be >= 0 pixels and finite, got {self.prefill_blend_distance}")
+        if self.blends_prefill and self.prefill == "white":
+            raise ValueError("prefill_blend < 1 or prefill_blend_distance > 0 needs a prefill method "
+                             "(telea, ns, gray, black), not white")
+
+    @property
+    def blends_prefill(self) -> bool:
+        """Whether inference blends the network's fill with the full-resolution prefill."""
+        return self.prefill_blend != 1.0 or self.prefill_blend_distance > 0.0
 
     @property
     def g2_width(self) -> int:
@@ -320,6 +338,30 @@ def _embedded(domain: str) -> Inpainter:
     return Inpainter.load(paths[domain])
 
 
+def network_share(hidden: Shaped[np.ndarray, "H W"], config: InpainterConfig) -> Float[np.ndarray, "H W"] | float:
+    """The network's share ``w`` of each hidden pixel in the blend ``w · y + (1 − w) · p`` with the
+    full-resolution prefill ``p`` (:attr:`InpainterConfig.prefill_blend`): the constant ``a =
+    prefill_blend``, or, with ``τ = prefill_blend_distance > 0``, ``a · (1 − exp(−d / τ))`` with ``d``
+    each pixel's distance to the nearest pixel outside ``hidden (H, W)`` (:func:`hole_distance`).
+    Chosen on the validation frames of the real-frame checkpoint (``experiments/inpaint_blend_scan.py``,
+    ``docs/model_card_inpainter_real.md``): there the least-squares share of the network per distance
+    band rises from 0 at the hole's border to 0.86 beyond 32 px."""
+    a, tau = config.prefill_blend, config.prefill_blend_distance
+    if tau <= 0.0:
+        return a
+    return (a * -np.expm1(-hole_distance(hidden) / tau)).astype(np.float32)
+
+
+def hole_distance(hidden: Shaped[np.ndarray, "H W"]) -> Float[np.ndarray, "H W"]:
+    """Each pixel's exact Euclidean distance in pixels to the nearest pixel outside ``hidden (H, W)``
+    (0 outside; ``scipy.ndimage.distance_transform_edt``, Maurer et al. 2003; deterministic, where
+    OpenCV's multithreaded precise transform varied in the last bits from call to call)."""
+    hidden = np.asarray(hidden, bool)
+    if hidden.all():  # no visible pixel: every distance is infinite (the share is a)
+        return np.full(hidden.shape, np.inf, np.float32)
+    return ndimage.distance_transform_edt(hidden).astype(np.float32)
+
+
 def filter_frame(
     image: np.ndarray,
     masks: np.ndarray,
@@ -365,7 +407,9 @@ def filter_frame(
         cnt[sl][own] += 1
     res = image.copy()
     res[hidden] = (acc[hidden] / cnt[hidden][:, None]).astype(np.float32)
-    if cfg.prefill_blend != 1.0:
+    if cfg.blends_prefill:
         base = baselines.fill(image, hidden, cfg.prefill)
-        res[hidden] = cfg.prefill_blend * res[hidden] + (1.0 - cfg.prefill_blend) * base[hidden]
+        share = network_share(hidden, cfg)
+        share = share if np.isscalar(share) else share[hidden][:, None]
+        res[hidden] = share * res[hidden] + (1.0 - share) * base[hidden]
     return like_input(res, original)

@@ -139,7 +139,7 @@ def _padded(image: np.ndarray, masks: np.ndarray, model: FilterModel, rows: int)
     k = len(c.edges)
     pad = ((0, rows - k),)
     return (filter_geometry(masks, model.config, rows),
-            FilterConstants(np.pad(c.edges, pad + ((0, 0),) * 2), np.pad(c.fill, pad + ((0, 0),) * 3), c.frame_fill))
+            c._replace(edges=np.pad(c.edges, pad + ((0, 0),) * 2), fill=np.pad(c.fill, pad + ((0, 0),) * 3)))
 
 
 def sample_of(ref: Any, tgt: Any, camera: Any, model: FilterModel, rows: int, dilation: int) -> TradeoffSample:
