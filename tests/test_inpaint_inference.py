@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from privslam_jax.inpaint import baselines
-from privslam_jax.inpaint.differentiable import FilterModel, filter_image
+from privslam_jax.inpaint.differentiable import FilterModel, filter_constants, filter_image
 from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame, hole_distance, inpaint_inference, network_share
 
 TINY = InpainterConfig(width=4, num_residual_blocks=1, prefill="telea", residual=True)
@@ -116,6 +116,25 @@ def test_distance_blend_follows_the_distance_to_the_visible_pixels():
     assert np.abs(got - filter_frame(img, masks, inpainter=_with(inp, prefill_blend=a))).max() > 1e-3  # not the constant share
     other = np.where(hidden[..., None], np.random.default_rng(1).random(img.shape), img).astype(np.float32)
     assert np.array_equal(filter_frame(other, masks, inpainter=_with(inp, prefill_blend=a, prefill_blend_distance=tau)), got)
+
+
+def test_distance_share_edge_cases_and_constants_it_needs():
+    """A frame hidden everywhere has no visible pixel: every distance is infinite and the share is
+    ``a``; a hole of one pixel is 1 px from the visible ones. Constants made for a constant blend
+    (no ``frame_share``) are refused by a distance-blend model instead of being blended wrongly."""
+    cfg = dataclasses.replace(TINY, prefill_blend=0.85, prefill_blend_distance=5.0)
+    everywhere = np.ones((4, 6), bool)
+    assert np.all(np.isinf(hole_distance(everywhere))) and np.all(network_share(everywhere, cfg) == np.float32(0.85))
+    one = np.zeros((5, 5), bool)
+    one[2, 2] = True
+    assert hole_distance(one)[2, 2] == 1.0 and hole_distance(one).sum() == 1.0
+    inp = _with(Inpainter.init(TINY, seed=2), prefill_blend=0.85, prefill_blend_distance=5.0)
+    model, params = FilterModel.split(inp)
+    img, masks = _frame()
+    constant = filter_constants(img, masks, dataclasses.replace(cfg, prefill_blend_distance=0.0))
+    assert constant.frame_share is None and constant.frame_fill is not None
+    with pytest.raises(ValueError, match="frame_share"):
+        filter_image(params, img, masks, model, constants=constant)
 
 
 @pytest.mark.parametrize("distance", [0.0, 5.0])
