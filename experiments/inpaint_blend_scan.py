@@ -47,7 +47,7 @@ SHARES = np.round(np.arange(0.70, 1.001, 0.05), 2)
 DISTANCES = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0)
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:  # numpy: metrics.image.psnr would compile once per hole size
     return float(10.0 * np.log10(1.0 / np.mean((a.astype(np.float64) - b) ** 2)))
 
 
@@ -55,14 +55,17 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--model", type=Path, default=EMBEDDED_REAL_INPAINTER, help="inpainter checkpoint (default: the real-frame one)")
     a = p.parse_args(argv)
+    try:  # checked before any work and before ../shared is needed
+        model = Inpainter.load(a.model)
+    except (OSError, ValueError) as err:
+        p.error(f"--model {a.model}: {err}")
+    cfg = dataclasses.replace(model.config, prefill_blend=1.0, prefill_blend_distance=0.0)
+    if cfg.prefill == "white":
+        p.error(f"--model {a.model}: its prefill is white; there is no prefill to blend with")
     shared = shared_dir()
     if shared is None:
         print("needs ../shared (real frames and object masks); nothing to do")
         return 1
-    model = Inpainter.load(a.model)
-    cfg = dataclasses.replace(model.config, prefill_blend=1.0, prefill_blend_distance=0.0)
-    if cfg.prefill == "white":
-        p.error(f"--model {a.model}: its prefill is white; there is no prefill to blend with")
     plain = Inpainter(*model.modules, cfg)
     real = shared / "data" / "real"
     shapes = object_shapes(image_paths(real / "kitti_raw_a" / "maskrcnn_masks")[32:])

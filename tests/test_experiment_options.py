@@ -1,5 +1,5 @@
 """Experiment scripts refuse an input they cannot use before any work and before ``../shared`` is needed
-(exit 2): ``table1b_real_recall.py --weights``, ``inpaint_real.py --model``."""
+(exit 2): ``table1b_real_recall.py --weights``, ``inpaint_real.py --model``, ``inpaint_blend_scan.py --model``."""
 
 from __future__ import annotations
 
@@ -51,3 +51,16 @@ def test_inpaint_real_refuses_a_bad_model(inpaint_real, kind, message, tmp_path,
         inpaint_real.main(["--model", spec, "--out", str(tmp_path / "t.md")])
     assert exc.value.code == 2 and message in capsys.readouterr().err
     assert not (tmp_path / "t.md").exists()
+
+
+@pytest.mark.parametrize("kind, message", [("missing", "not found"), ("corrupt", "bad.npz"), ("white", "prefill is white")])
+def test_inpaint_blend_scan_refuses_a_bad_model(kind, message, tmp_path, capsys, monkeypatch):
+    from privslam_jax.inpaint.filter import EMBEDDED_INPAINTER
+
+    monkeypatch.setenv("PRIVSLAM_SHARED", str(tmp_path / "absent"))  # refused before ../shared is needed
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not an npz")
+    model = {"missing": tmp_path / "none.npz", "corrupt": bad, "white": EMBEDDED_INPAINTER}[kind]  # the synthetic one: white
+    with pytest.raises(SystemExit) as exc:
+        _load("inpaint_blend_scan").main(["--model", str(model)])
+    assert exc.value.code == 2 and message in capsys.readouterr().err

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from privslam_jax.errors import InputError
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.differentiable import FilterModel, filter_constants, filter_image
 from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame, hole_distance, inpaint_inference, network_share
@@ -173,3 +174,8 @@ def test_settings_are_checked_and_saved(tmp_path):
     assert back.config == inp.config
     img, masks = _frame()
     np.testing.assert_array_equal(filter_frame(img, masks, inpainter=back), filter_frame(img, masks, inpainter=inp))
+    arrays = dict(np.load(tmp_path / "m.npz"))  # a checkpoint whose distance is negative is refused, naming the file
+    arrays["config/prefill_blend_distance"] = np.asarray(-5.0, arrays["config/prefill_blend_distance"].dtype)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(InputError, match="bad.npz"):
+        Inpainter.load(tmp_path / "bad.npz")
