@@ -4,14 +4,16 @@ On the validation set of ``experiments/inpaint_real.py`` (``kitti_raw_a`` run 2,
 placement of three held-out silhouettes per frame, seed 7; the evaluation sets are never read here),
 the checkpoint's network fill ``y`` (its flip average, no blend) and Telea of the whole frame ``p``
 are computed once per case; then, inside the holes, with ``d`` each hidden pixel's Euclidean distance
-to the nearest visible pixel (:func:`~privslam_jax.inpaint.filter.hole_distance`):
+to the nearest visible pixel in frame pixels or in model pixels (divided by the resize factor of the
+pixel's crop; :func:`~privslam_jax.inpaint.filter.blend_distance`):
 
 1. the pooled least-squares share of the network per distance band, ``w* = Σ (y − p)(x − p) / Σ (y − p)²``
    over the band's pixels (``x`` the truth): how far from the visible pixels the network beats Telea;
-2. the grid ``w = a · (1 − exp(−d / τ))`` (``τ = 0``: the constant ``a``), scored by the mean per-case
-   PSNR (the quantity a per-case median of PSNR gains is robust to) and, for reading, the paired median
-   PSNR gain over Telea. The best grid point is what ``InpainterConfig.prefill_blend`` and
-   ``prefill_blend_distance`` of the shipped checkpoint hold (``docs/model_card_inpainter_real.md``).
+2. the grid ``w = a · (1 − exp(−d / τ))`` (``τ = 0``: the constant ``a``) in both units, scored by the
+   mean per-case PSNR (the quantity a per-case median of PSNR gains is robust to) and, for reading, the
+   paired median PSNR gain over Telea. The best grid point is what ``InpainterConfig.prefill_blend``,
+   ``prefill_blend_distance`` and ``prefill_blend_unit`` of the shipped checkpoint hold
+   (``docs/model_card_inpainter_real.md``).
 
 Command::
 
@@ -40,11 +42,12 @@ from privslam_jax._shared import shared_dir  # noqa: E402
 from privslam_jax.inpaint import baselines  # noqa: E402
 from privslam_jax.inpaint.data import image_paths, object_shapes  # noqa: E402
 from privslam_jax.inpaint.evaluate import real_hole_cases  # noqa: E402
-from privslam_jax.inpaint.filter import EMBEDDED_REAL_INPAINTER, Inpainter, filter_frame, hole_distance  # noqa: E402
+from privslam_jax.inpaint.filter import EMBEDDED_REAL_INPAINTER, Inpainter, blend_distance, filter_frame  # noqa: E402
 
-BANDS = (0.0, 2.0, 4.0, 8.0, 16.0, 32.0, np.inf)
+BANDS = {"frame": (0.0, 2.0, 4.0, 8.0, 16.0, 32.0, np.inf), "model": (0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, np.inf)}
 SHARES = np.round(np.arange(0.70, 1.001, 0.05), 2)
-DISTANCES = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0)
+DISTANCES = {"frame": (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0),
+             "model": (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0)}
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:  # numpy: metrics.image.psnr would compile once per hole size
@@ -59,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         model = Inpainter.load(a.model)
     except (OSError, ValueError) as err:
         p.error(f"--model {a.model}: {err}")
-    cfg = dataclasses.replace(model.config, prefill_blend=1.0, prefill_blend_distance=0.0)
+    cfg = dataclasses.replace(model.config, prefill_blend=1.0, prefill_blend_distance=0.0, prefill_blend_unit="frame")
     if cfg.prefill == "white":
         p.error(f"--model {a.model}: its prefill is white; there is no prefill to blend with")
     shared = shared_dir()
@@ -75,31 +78,34 @@ def main(argv: list[str] | None = None) -> int:
         hidden = masks.any(axis=0)
         cases.append({"y": filter_frame(image, masks, inpainter=plain)[hidden],
                       "p": baselines.fill(image, hidden, cfg.prefill)[hidden], "x": target[hidden],
-                      "d": hole_distance(hidden)[hidden].astype(np.float64)})
+                      **{unit: blend_distance(masks, dataclasses.replace(cfg, prefill_blend_unit=unit))[hidden]
+                         .astype(np.float64) for unit in BANDS}})
     print(f"validation: {len(cases)} cases of {len(frames)} kitti_raw_a frames (run 2), checkpoint {a.model.name}")
-    print("\nnetwork share per distance band (pooled least squares)")
-    for lo, hi in zip(BANDS[:-1], BANDS[1:]):
-        num = den = 0.0
-        for c in cases:
-            m = (c["d"] >= lo) & (c["d"] < hi)
-            diff = c["y"][m] - c["p"][m]
-            num += float(np.sum(diff * (c["x"][m] - c["p"][m])))
-            den += float(np.sum(diff * diff))
-        print(f"  d in [{lo:g}, {hi:g}) px: w* = {num / den:+.3f}")
+    for unit, bands in BANDS.items():
+        print(f"\nnetwork share per distance band, {unit} pixels (pooled least squares)")
+        for lo, hi in zip(bands[:-1], bands[1:]):
+            num = den = 0.0
+            for c in cases:
+                m = (c[unit] >= lo) & (c[unit] < hi)
+                diff = c["y"][m] - c["p"][m]
+                num += float(np.sum(diff * (c["x"][m] - c["p"][m])))
+                den += float(np.sum(diff * diff))
+            print(f"  d in [{lo:g}, {hi:g}) px: w* = {num / den:+.3f}")
     print("\nshare a·(1 − exp(−d/τ)) (τ = 0: constant a): mean per-case PSNR, median paired gain over Telea")
     best = None
-    for share in SHARES:
-        for tau in DISTANCES:
-            gains, psnrs = [], []
-            for c in cases:
-                w = np.full_like(c["d"], share) if tau == 0 else share * -np.expm1(-c["d"] / tau)
-                out = w[:, None] * c["y"] + (1.0 - w[:, None]) * c["p"]
-                psnrs.append(_psnr(out, c["x"]))
-                gains.append(psnrs[-1] - _psnr(c["p"], c["x"]))
-            row = (float(np.mean(psnrs)), float(share), tau, float(np.median(gains)))
-            best = row if best is None or row[0] > best[0] else best
-            print(f"  a {share:.2f}  τ {tau:4g} px: mean PSNR {row[0]:.3f} dB, median gain {row[3]:+.3f} dB")
-    print(f"\nbest by mean per-case PSNR: a = {best[1]:.2f}, τ = {best[2]:g} px (mean PSNR {best[0]:.3f} dB, "
+    for unit, taus in DISTANCES.items():
+        for share in SHARES:
+            for tau in taus:
+                gains, psnrs = [], []
+                for c in cases:
+                    w = np.full_like(c[unit], share) if tau == 0 else share * -np.expm1(-c[unit] / tau)
+                    out = w[:, None] * c["y"] + (1.0 - w[:, None]) * c["p"]
+                    psnrs.append(_psnr(out, c["x"]))
+                    gains.append(psnrs[-1] - _psnr(c["p"], c["x"]))
+                row = (float(np.mean(psnrs)), float(share), tau, float(np.median(gains)), unit)
+                best = row if best is None or row[0] > best[0] else best
+                print(f"  a {share:.2f}  τ {tau:4g} {unit} px: mean PSNR {row[0]:.3f} dB, median gain {row[3]:+.3f} dB")
+    print(f"\nbest by mean per-case PSNR: a = {best[1]:.2f}, τ = {best[2]:g} {best[4]} px (mean PSNR {best[0]:.3f} dB, "
           f"median gain over Telea {best[3]:+.3f} dB)")
     return 0
 

@@ -24,9 +24,9 @@ Command::
 
 Default models: the embedded real-domain checkpoint (with its inference settings: the mean of the
 fill and the mirrored crop's mirrored fill, blended with Telea at full resolution, the network's share
-0.85 · (1 − exp(−d / 5 px)) at distance d from the visible pixels), the same weights with the constant
-share 0.8 of the settings until 2026-12-07, the same weights without any of them ("plain inference"),
-and the synthetic-only checkpoint. Runtime ≈ 13 min on 2 cores. Needs ``../shared`` (exits with a
+1 − exp(−d / 3) at distance d from the visible pixels in model pixels), the same weights with the
+share 0.85 · (1 − exp(−d / 5 px)) in frame pixels of the previous settings (2026-12-07), the same weights
+without any of them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 13 min on 2 cores. Needs ``../shared`` (exits with a
 message without it).
 """
 
@@ -112,10 +112,11 @@ def main(argv: list[str] | None = None) -> int:
     if not a.model:  # what the checkpoint's inference settings (flip average, Telea blend) add
         real_model = models["edgeconnect (real-domain)"]
         models = {"edgeconnect (real-domain)": real_model,
-                  "edgeconnect (real-domain, constant blend 0.8)": Inpainter(*real_model.modules, dataclasses.replace(
-                      real_model.config, prefill_blend=0.8, prefill_blend_distance=0.0)),
+                  "edgeconnect (real-domain, blend by frame distance)": Inpainter(*real_model.modules, dataclasses.replace(
+                      real_model.config, prefill_blend=0.85, prefill_blend_distance=5.0, prefill_blend_unit="frame")),
                   "edgeconnect (real-domain, plain inference)": Inpainter(*real_model.modules, dataclasses.replace(
-                      real_model.config, flip_average=False, prefill_blend=1.0, prefill_blend_distance=0.0)),
+                      real_model.config, flip_average=False, prefill_blend=1.0, prefill_blend_distance=0.0,
+                      prefill_blend_unit="frame")),
                   "edgeconnect (synthetic-only)": models["edgeconnect (synthetic-only)"]}
     if a.without_edge_model:
         models |= {f"{name}, no edge generator": model.without_edge_model() for name, model in models.items()}
@@ -131,9 +132,10 @@ def main(argv: list[str] | None = None) -> int:
           "Models: " + ", ".join(f"{n} = `{Path(q).name}`" for n, q in
                                  (s.partition('=')[::2] for s in specs)) + "."
           + ("" if a.model else " The real-domain checkpoint runs with its inference settings (flip average, "
-                                 "Telea blend with the network's share 0.85 · (1 − exp(−d / 5 px)) at distance d from "
-                                 "the visible pixels); 'constant blend 0.8' is the same weights with the share 0.8 "
-                                 "everywhere (the settings until 2026-12-07); 'plain inference' is the same weights "
+                                 "Telea blend with the network's share 1 − exp(−d / 3) at distance d from the visible "
+                                 "pixels in model pixels, i.e. frame pixels / the crop's resize factor); 'blend by frame "
+                                 "distance' is the same weights with the share 0.85 · (1 − exp(−d / 5 px)) in frame "
+                                 "pixels (the previous settings, 2026-12-07); 'plain inference' is the same weights "
                                  "without any of them."), ""]
     t0 = time.perf_counter()
     for set_name, (paths, repeats, seed) in sets.items():

@@ -91,7 +91,7 @@ def embedded(request):
 
 
 def test_equals_filter_frame_and_keeps_the_outside_bit_identical(embedded):
-    """Parity on the 10-object synthetic frame: 3.0e-7 / 1.2e-7 / 1.8e-7 measured for the synthetic /
+    """Parity on the 10-object synthetic frame: 3.0e-7 / 1.5e-7 / 1.8e-7 measured for the synthetic /
     real / trade-off checkpoints (acceptance: 2/255); outside the union of the masks the output is
     the input, bit for bit."""
     inp, params, run = embedded

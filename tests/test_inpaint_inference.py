@@ -1,10 +1,10 @@
-"""Inference settings of an inpainter checkpoint: ``InpainterConfig.flip_average``, ``prefill_blend`` and
-``prefill_blend_distance``.
+"""Inference settings of an inpainter checkpoint: ``InpainterConfig.flip_average``, ``prefill_blend``,
+``prefill_blend_distance`` and ``prefill_blend_unit``.
 
 References: mirror equivariance (a property the plain network lacks), the public
 ``filter_frame`` of the same weights without the setting combined with
 :func:`privslam_jax.inpaint.baselines.fill` of the whole frame (and a brute-force nearest visible
-pixel for the distance-dependent share), and the differentiable ``filter_image`` against
+pixel and crop sizes worked out by hand for the distance-dependent share), and the differentiable ``filter_image`` against
 ``filter_frame`` (as ``tests/test_filter_image.py`` does for the defaults).
 """
 
@@ -20,7 +20,8 @@ import pytest
 from privslam_jax.errors import InputError
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint.differentiable import FilterModel, filter_constants, filter_image
-from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame, hole_distance, inpaint_inference, network_share
+from privslam_jax.inpaint.filter import (Inpainter, InpainterConfig, blend_distance, filter_frame, hole_distance, inpaint_inference,
+                                         network_share)
 
 TINY = InpainterConfig(width=4, num_residual_blocks=1, prefill="telea", residual=True)
 
@@ -100,14 +101,14 @@ def test_distance_blend_follows_the_distance_to_the_visible_pixels():
     hidden = masks.any(axis=0)
     a, tau = 0.85, 5.0
     cfg = dataclasses.replace(TINY, prefill_blend=a, prefill_blend_distance=tau)
-    share = network_share(hidden, cfg)
+    share = network_share(masks, cfg)
     vis, hid = np.argwhere(~hidden), np.argwhere(hidden)  # brute force: the nearest visible pixel of each
     d = np.zeros(hidden.shape)
     d[hidden] = [np.sqrt(((vis - q) ** 2).sum(axis=1).min()) for q in hid]
     np.testing.assert_allclose(hole_distance(hidden), d, rtol=1e-6)
     np.testing.assert_allclose(share, a * (1 - np.exp(-d / tau)), rtol=1e-5, atol=1e-6)
     assert np.all(share[~hidden] == 0) and 0 < share[hidden].min() < 0.2 * a and share.max() > 0.95 * a
-    assert network_share(hidden, TINY) == 1.0 and network_share(hidden, dataclasses.replace(TINY, prefill_blend=a)) == a
+    assert network_share(masks, TINY) == 1.0 and network_share(masks, dataclasses.replace(TINY, prefill_blend=a)) == a
     plain = filter_frame(img, masks, inpainter=inp)
     got = filter_frame(img, masks, inpainter=_with(inp, prefill_blend=a, prefill_blend_distance=tau))
     w = (a * (1 - np.exp(-d / tau)))[..., None]
@@ -119,13 +120,37 @@ def test_distance_blend_follows_the_distance_to_the_visible_pixels():
     assert np.array_equal(filter_frame(other, masks, inpainter=_with(inp, prefill_blend=a, prefill_blend_distance=tau)), got)
 
 
+def test_distance_in_model_pixels_divides_by_each_crops_resize_factor():
+    """``prefill_blend_unit="model"``: the distance is divided by the resize factor of the pixel's crop,
+    worked out by hand for ``_frame``'s masks (``crop_pad`` 0.5, ``min_crop`` 32, 96×160 frame): mask 0
+    (40×35 px) gets an 80-px square crop, factor 80/64; mask 1 (40×55 px) a crop of 110 px shrunk to
+    the frame's 96, factor 96/64; where they overlap, the mean 1.375, as their fills are averaged.
+    The share follows it, and ``filter_constants`` hands the differentiable filter the same share."""
+    img, masks = _frame()
+    hidden = masks.any(axis=0)
+    cfg = dataclasses.replace(TINY, prefill_blend=0.9, prefill_blend_distance=3.0, prefill_blend_unit="model")
+    factor = np.ones(hidden.shape)
+    factor[masks[0]] = 80 / 64
+    factor[masks[1]] = 96 / 64
+    factor[masks[0] & masks[1]] = (80 / 64 + 96 / 64) / 2
+    d = hole_distance(hidden) / factor
+    np.testing.assert_allclose(blend_distance(masks, cfg), d, rtol=1e-6)
+    np.testing.assert_array_equal(blend_distance(masks, dataclasses.replace(cfg, prefill_blend_unit="frame")),
+                                  hole_distance(hidden))
+    share = network_share(masks, cfg)
+    np.testing.assert_allclose(share, 0.9 * (1 - np.exp(-d / 3.0)), rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(filter_constants(img, masks, cfg).frame_share, share)
+    with pytest.raises(ValueError, match="prefill_blend_unit"):
+        dataclasses.replace(cfg, prefill_blend_unit="metres")
+
+
 def test_distance_share_edge_cases_and_constants_it_needs():
     """A frame hidden everywhere has no visible pixel: every distance is infinite and the share is
     ``a``; a hole of one pixel is 1 px from the visible ones. Constants made for a constant blend
     (no ``frame_share``) are refused by a distance-blend model instead of being blended wrongly."""
     cfg = dataclasses.replace(TINY, prefill_blend=0.85, prefill_blend_distance=5.0)
     everywhere = np.ones((4, 6), bool)
-    assert np.all(np.isinf(hole_distance(everywhere))) and np.all(network_share(everywhere, cfg) == np.float32(0.85))
+    assert np.all(np.isinf(hole_distance(everywhere))) and np.all(network_share(everywhere[None], cfg) == np.float32(0.85))
     one = np.zeros((5, 5), bool)
     one[2, 2] = True
     assert hole_distance(one)[2, 2] == 1.0 and hole_distance(one).sum() == 1.0

@@ -93,7 +93,7 @@ def test_training_starts_from_the_widened_generator(tmp_path):
 
 def test_train_script_widens_its_init_and_exports_the_inference_settings(tmp_path):
     """``train/inpaint.py --init narrow.npz --inpaint-width 6 --export-flip-average --export-prefill-blend 0.8
-    --export-prefill-blend-distance 5``:
+    --export-prefill-blend-distance 5 --export-prefill-blend-unit model``:
     the exported checkpoint has the wider image generator and carries those settings in its config."""
     import importlib.util
     from pathlib import Path
@@ -114,9 +114,9 @@ def test_train_script_widens_its_init_and_exports_the_inference_settings(tmp_pat
             "--stages", "edge_inpaint:1", "--prefill", "telea", "--residual", "--init", str(tmp_path / "narrow.npz"),
             "--inpaint-width", "6", "--workdir", str(tmp_path / "run"), "--export", str(tmp_path / "wide.npz"),
             "--export-flip-average", "--export-prefill-blend", "0.8", "--export-prefill-blend-distance", "5",
-            "--sample-every", "0"]
+            "--export-prefill-blend-unit", "model", "--sample-every", "0"]
     assert module.main(argv) == 0
     out = Inpainter.load(tmp_path / "wide.npz")
     assert out.config == dataclasses.replace(init.config, inpaint_width=6, flip_average=True, prefill_blend=0.8,
-                                             prefill_blend_distance=5.0)
+                                             prefill_blend_distance=5.0, prefill_blend_unit="model")
     assert out.modules[1].enc1.kernel.shape == (7, 7, 4, 6)

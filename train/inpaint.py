@@ -26,7 +26,7 @@ Rerunning the same command resumes from ``WORKDIR/checkpoints``. Writes PNG samp
 ``WORKDIR/samples`` and the losses to ``WORKDIR/log.csv``; ``--export`` writes the generators as
 an :class:`~privslam_jax.inpaint.filter.Inpainter` ``.npz`` usable by ``privslam filter``, with the
 inference settings ``--export-flip-average``, ``--export-prefill-blend`` and
-``--export-prefill-blend-distance`` in its config (:class:`~privslam_jax.inpaint.filter.InpainterConfig`;
+``--export-prefill-blend-distance`` (in ``--export-prefill-blend-unit``) in its config (:class:`~privslam_jax.inpaint.filter.InpainterConfig`;
 the real-frame checkpoint's are on, 0.85 and 5 px).
 """
 
@@ -79,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--export-prefill-blend-distance", type=nonnegative_float, default=0.0, metavar="PX",
                    help="inference setting stored in the exported config: if > 0, the network's share at distance d "
                    "(px) from the visible pixels is --export-prefill-blend * (1 - exp(-d / PX)) (0: constant share)")
+    p.add_argument("--export-prefill-blend-unit", choices=("frame", "model"), default="frame",
+                   help="what --export-prefill-blend-distance is measured in: frame pixels, or model pixels "
+                   "(frame pixels / the crop's resize factor)")
     p.add_argument("--width", type=positive_int, default=16)
     p.add_argument("--inpaint-width", type=nonnegative_int, default=0,
                    help="the image generator's own width (0: --width); with --init, a wider one than the "
@@ -151,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
                       prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every,
                       devices=a.devices)
     inference = dict(flip_average=a.export_flip_average, prefill_blend=a.export_prefill_blend,
-                     prefill_blend_distance=a.export_prefill_blend_distance)
+                     prefill_blend_distance=a.export_prefill_blend_distance, prefill_blend_unit=a.export_prefill_blend_unit)
     try:  # the exported inference settings, checked before any work
         InpainterConfig(prefill=a.prefill, **inference)
     except ValueError as err:

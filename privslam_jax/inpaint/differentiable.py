@@ -250,7 +250,7 @@ def filter_constants(
         edges[k] = safe_canny(to_grey(rgb_s), hole_s, sigma=config.sigma)[0]
         fill[k] = baselines.fill(rgb_s, hole_s, config.prefill)
     frame_fill = baselines.fill(rgb, hidden, config.prefill).astype(np.float32) if config.blends_prefill else None
-    frame_share = network_share(hidden, config) if config.prefill_blend_distance > 0.0 else None
+    frame_share = network_share(masks, config) if config.prefill_blend_distance > 0.0 else None
     return FilterConstants(edges, fill, frame_fill, frame_share)
 
 

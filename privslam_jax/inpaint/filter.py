@@ -13,8 +13,8 @@ leak-free edges of :func:`~privslam_jax.inpaint.masks.safe_canny`):
 ``y = G_img([rgb·(1−m) + m, ê])``, output ``y·m + rgb·(1−m)``.  A checkpoint may add inference
 settings (:class:`InpainterConfig`): the mean with the mirrored crop's mirrored fill
 (``flip_average``, :func:`inpaint_inference`) and, on the frame, a blend with the prefill method run at
-full resolution (``prefill_blend``, by distance to the visible pixels with ``prefill_blend_distance``:
-:func:`network_share`).
+full resolution (``prefill_blend``, by distance to the visible pixels with ``prefill_blend_distance``
+in frame or model pixels, ``prefill_blend_unit``: :func:`network_share`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Float, Shaped
+from jaxtyping import Array, Bool, Float, Shaped
 from scipy import ndimage
 
 from privslam_jax._xla import OPTIMISED
@@ -38,7 +38,8 @@ from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, EdgeGenerator, InpaintGe
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 
 __all__ = ["EMBEDDED_INPAINTER", "EMBEDDED_REAL_INPAINTER", "EMBEDDED_TRADEOFF_INPAINTER", "FILTER_METHODS", "Inpainter",
-           "InpainterConfig", "edgeconnect_forward", "filter_frame", "hole_distance", "inpaint_inference", "network_share"]
+           "InpainterConfig", "blend_distance", "edgeconnect_forward", "filter_frame", "hole_distance", "inpaint_inference",
+           "network_share"]
 
 INPAINTER_METHODS: tuple[str, ...] = ("edgeconnect", "tradeoff")
 """Filter methods run by an EdgeConnect :class:`Inpainter`: ``"tradeoff"`` is the same network with the
@@ -101,6 +102,12 @@ class InpainterConfig:
     full-resolution prefill, which continues them, is the better estimate; deep inside the hole the
     network's. 0 keeps the constant share. A function of the masks only, so still independent of every
     hidden pixel."""
+    prefill_blend_unit: str = "frame"
+    """What :attr:`prefill_blend_distance` is measured in: ``"frame"`` pixels, or ``"model"`` pixels,
+    i.e. frame pixels divided by the resize factor of the pixel's crop (its larger side / :attr:`size`;
+    the mean over the crops of the objects covering the pixel). In model pixels the band where
+    the full-resolution prefill beats the network grows with the object, as the network's fill,
+    made at ``size × size`` and resized up, loses detail in proportion."""
 
     def __post_init__(self):
         if self.prefill not in PREFILLS:
@@ -111,6 +118,8 @@ class InpainterConfig:
             raise ValueError(f"prefill_blend must lie in [0, 1], got {self.prefill_blend}")
         if not 0.0 <= self.prefill_blend_distance < float("inf"):
             raise ValueError(f"prefill_blend_distance must be >= 0 pixels and finite, got {self.prefill_blend_distance}")
+        if self.prefill_blend_unit not in ("frame", "model"):
+            raise ValueError(f"prefill_blend_unit must be 'frame' or 'model', got {self.prefill_blend_unit!r}")
         if self.blends_prefill and self.prefill == "white":
             raise ValueError("prefill_blend < 1 or prefill_blend_distance > 0 needs a prefill method "
                              "(telea, ns, gray, black), not white")
@@ -338,18 +347,35 @@ def _embedded(domain: str) -> Inpainter:
     return Inpainter.load(paths[domain])
 
 
-def network_share(hidden: Shaped[np.ndarray, "H W"], config: InpainterConfig) -> Float[np.ndarray, "H W"] | float:
+def network_share(masks: Bool[np.ndarray, "K H W"], config: InpainterConfig) -> Float[np.ndarray, "H W"] | float:
     """The network's share ``w`` of each hidden pixel in the blend ``w · y + (1 − w) · p`` with the
     full-resolution prefill ``p`` (:attr:`InpainterConfig.prefill_blend`): the constant ``a =
     prefill_blend``, or, with ``τ = prefill_blend_distance > 0``, ``a · (1 − exp(−d / τ))`` with ``d``
-    each pixel's distance to the nearest pixel outside ``hidden (H, W)`` (:func:`hole_distance`).
-    Chosen on the validation frames of the real-frame checkpoint (``experiments/inpaint_blend_scan.py``,
-    ``docs/model_card_inpainter_real.md``): there the least-squares share of the network per distance
-    band rises from 0 at the hole's border to 0.86 beyond 32 px."""
+    the pixel's :func:`blend_distance`. Chosen on the validation frames of the real-frame checkpoint
+    (``experiments/inpaint_blend_scan.py``, ``docs/model_card_inpainter_real.md``)."""
     a, tau = config.prefill_blend, config.prefill_blend_distance
     if tau <= 0.0:
         return a
-    return (a * -np.expm1(-hole_distance(hidden) / tau)).astype(np.float32)
+    return (a * -np.expm1(-blend_distance(masks, config) / tau)).astype(np.float32)
+
+
+def blend_distance(masks: Bool[np.ndarray, "K H W"], config: InpainterConfig) -> Float[np.ndarray, "H W"]:
+    """Each pixel's distance to the nearest pixel outside the union of ``masks``
+    (:func:`hole_distance`), in the unit of :attr:`InpainterConfig.prefill_blend_unit`: frame pixels,
+    or model pixels, i.e. divided by the resize factor ``s`` of the pixel's crop (the crop's larger
+    side / ``size``, :func:`~privslam_jax.inpaint.crops.crop_box`), averaged over the masks covering the
+    pixel as their fills are (``s = 1`` outside every mask, where the distance is 0)."""
+    masks = np.asarray(masks, bool)
+    d = hole_distance(masks.any(axis=0))
+    if config.prefill_blend_unit == "frame":
+        return d
+    total = np.zeros(d.shape, np.float64)
+    count = np.zeros(d.shape, np.int32)
+    for m in masks[masks.any(axis=(1, 2))]:
+        box = crop_box(m, config.crop_pad, config.min_crop)
+        total[m] += max(box.height, box.width) / config.size
+        count[m] += 1
+    return (d / np.where(count > 0, total / np.maximum(count, 1), 1.0)).astype(np.float32)
 
 
 def hole_distance(hidden: Shaped[np.ndarray, "H W"]) -> Float[np.ndarray, "H W"]:
@@ -409,7 +435,7 @@ def filter_frame(
     res[hidden] = (acc[hidden] / cnt[hidden][:, None]).astype(np.float32)
     if cfg.blends_prefill:
         base = baselines.fill(image, hidden, cfg.prefill)
-        share = network_share(hidden, cfg)
+        share = network_share(masks, cfg)
         share = share if np.isscalar(share) else share[hidden][:, None]
         res[hidden] = share * res[hidden] + (1.0 - share) * base[hidden]
     return like_input(res, original)
