@@ -245,6 +245,7 @@ TRAIN_CASES = [
     ("inpaint", [*INPAINT, "--export-prefill-blend-distance", "-1"], "--export-prefill-blend-distance"),
     ("inpaint", [*INPAINT, "--export-prefill-blend-distance", "5"], "--export-prefill-blend-distance"),  # nor with white
     ("inpaint", [*INPAINT, "--export-prefill-blend-unit", "metres"], "--export-prefill-blend-unit"),
+    ("inpaint", [*INPAINT, "--blend-distance", "0"], "--blend-distance"),
     ("inpaint", [*INPAINT, "--init", MISSING], "--init"),
     ("inpaint", [*INPAINT, "--init", str(REPO / "privslam_jax/assets/inpainter_cpu16.npz"), "--inpaint-width", "40"], "--init"),
     ("inpaint", [*INPAINT, "--devices", "0"], "--devices"),

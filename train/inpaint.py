@@ -63,8 +63,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--init", type=Path, help="fine-tune from this Inpainter .npz")
     p.add_argument("--prefill", default="white", help="what G2 sees in the hole: white (official), telea, ns, gray")
     p.add_argument("--residual", action="store_true", help="G2 predicts a correction of the prefill")
-    p.add_argument("--hole-loss", default="l1", choices=("l1", "l1_hole", "l2_hole"),
+    p.add_argument("--hole-loss", default="l1", choices=("l1", "l1_hole", "l2_hole", "l2_blend"),
                    help="G2's reconstruction loss: l1 (official, whole crop), or inside the hole only")
+    p.add_argument("--blend-distance", type=positive_float, default=3.0, metavar="PX",
+                   help="tau of --hole-loss l2_blend in model pixels: the loss is taken on the blend with the prefill "
+                   "whose network share is 1 - exp(-d / PX) at distance d from the visible pixels")
     p.add_argument("--synth-seed", type=nonnegative_int, default=0)
     p.add_argument("--synth-seeds", type=seed_list, help="several worlds: comma list or range A-B (overrides --synth-seed); "
                    "--synth-frames frames of each")
@@ -151,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
                       lr=a.lr, inpaint_lr=a.inpaint_lr, inpaint_beta1=a.inpaint_beta1,
                       inpaint_lr_final=a.inpaint_lr_final,
                       inpaint_adv_weight=a.inpaint_adv_weight,
-                      prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every,
+                      prefill=a.prefill, residual=a.residual, hole_loss=a.hole_loss, blend_distance=a.blend_distance, checkpoint_every=a.checkpoint_every, sample_every=a.sample_every,
                       devices=a.devices)
     inference = dict(flip_average=a.export_flip_average, prefill_blend=a.export_prefill_blend,
                      prefill_blend_distance=a.export_prefill_blend_distance, prefill_blend_unit=a.export_prefill_blend_unit)

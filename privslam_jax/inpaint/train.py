@@ -41,7 +41,7 @@ from privslam_jax.sharding import data_mesh, local_part, local_rows, replicate, 
 from privslam_jax.inpaint import baselines
 from privslam_jax.inpaint import losses as L
 from privslam_jax.inpaint.edgeconnect import CPU_WIDTH, Discriminator, EdgeGenerator, InpaintGenerator
-from privslam_jax.inpaint.filter import PREFILLS, Inpainter, InpainterConfig, residual_output
+from privslam_jax.inpaint.filter import PREFILLS, Inpainter, InpainterConfig, hole_distance, residual_output
 from privslam_jax.inpaint.masks import safe_canny, to_grey
 from privslam_jax.inpaint.widen import widen_inpaint_generator
 
@@ -114,7 +114,13 @@ class TrainConfig:
     hole_loss: str = "l1"
     """G2's reconstruction term: ``"l1"`` (official: ``mean|out − y| / mean(mask)`` over the whole
     crop), ``"l1_hole"`` or ``"l2_hole"`` (:func:`~privslam_jax.inpaint.losses.masked_hole_loss`:
-    inside the hole only; L2 is what PSNR measures). Weighted by ``l1_weight``."""
+    inside the hole only; L2 is what PSNR measures), or ``"l2_blend"``: the squared error inside the hole
+    of the blend the filter makes, ``w · out + (1 − w) · fill`` with the network's share ``w = 1 −
+    exp(−d / blend_distance)`` at distance ``d`` (model pixels) from the nearest visible pixel
+    (:func:`~privslam_jax.inpaint.filter.network_share` with ``prefill_blend_unit="model"``; the crop's
+    prefill stands in for the frame's full-resolution one). Weighted by ``l1_weight``."""
+    blend_distance: float = 3.0
+    """τ of ``hole_loss="l2_blend"``, in model pixels."""
     residual: bool = False
     """G2 predicts a correction of the prefill (:attr:`~privslam_jax.inpaint.filter.InpainterConfig.residual`)."""
     seed: int = 0
@@ -147,8 +153,10 @@ class TrainConfig:
             raise ValueError(f"sample_every must be >= 0, got {self.sample_every}")
         if self.batch_size % self.devices:
             raise ValueError(f"batch_size {self.batch_size} must be a multiple of devices {self.devices}")
-        if self.hole_loss not in ("l1", "l1_hole", "l2_hole"):
-            raise ValueError(f"hole_loss must be l1, l1_hole or l2_hole, got {self.hole_loss!r}")
+        if self.hole_loss not in ("l1", "l1_hole", "l2_hole", "l2_blend"):
+            raise ValueError(f"hole_loss must be l1, l1_hole, l2_hole or l2_blend, got {self.hole_loss!r}")
+        if not 0.0 < self.blend_distance < float("inf"):
+            raise ValueError(f"blend_distance must be > 0 and finite, got {self.blend_distance}")
         if self.prefill not in PREFILLS:
             raise ValueError(f"prefill must be one of {PREFILLS}, got {self.prefill!r}")
 
@@ -171,11 +179,12 @@ class TrainConfig:
         raise ValueError(f"step {step} beyond the schedule ({acc} steps)")
 
 
-def prepare_batch(images: np.ndarray, holes: np.ndarray, sigma: float = 2.0, prefill: str = "white"
-                  ) -> dict[str, np.ndarray]:
+def prepare_batch(images: np.ndarray, holes: np.ndarray, sigma: float = 2.0, prefill: str = "white",
+                  blend_distance: float = 0.0) -> dict[str, np.ndarray]:
     """Host-side inputs: rgb, grey, true edges, leak-free input edges, hole, edge hole, and G2's
     hole fill (``prefill``: a :mod:`~privslam_jax.inpaint.baselines` fill of the image with the hole
-    zeroed; "white" = 1 as the official code) (B,S,S,·)."""
+    zeroed; "white" = 1 as the official code) (B,S,S,·); with ``blend_distance`` τ > 0 also ``share``,
+    ``1 − exp(−d / τ)`` of each pixel's distance ``d`` to the nearest visible pixel (``hole_loss="l2_blend"``)."""
     if images.ndim != 4 or images.shape[-1] != 3 or holes.shape != images.shape[:3]:
         raise ValueError(f"need images (B, S, S, 3) and holes (B, S, S), got {images.shape}, {holes.shape}")
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("grey", "edges_true", "edges_in", "edge_hole")}
@@ -192,6 +201,9 @@ def prepare_batch(images: np.ndarray, holes: np.ndarray, sigma: float = 2.0, pre
     batch["hole"] = holes[..., None].astype(np.float32)
     batch["fill"] = np.stack([baselines.fill(np.where(h[..., None], np.float32(0), img), h, prefill)
                               for img, h in zip(batch["rgb"], holes.astype(bool), strict=True)])
+    if blend_distance > 0.0:
+        batch["share"] = np.stack([-np.expm1(-hole_distance(h) / blend_distance) for h in holes.astype(bool)]
+                                  )[..., None].astype(np.float32)
     return batch
 
 
@@ -261,6 +273,8 @@ def _inpaint_g_step(c: TrainConfig, feature_fn, g, d, opt, b, edges):
             adv = jnp.zeros(())
         if c.hole_loss == "l1":
             l1 = L.l1_hole_loss(out, y, m)
+        elif c.hole_loss == "l2_blend":
+            l1 = L.masked_hole_loss(b["share"] * out + (1 - b["share"]) * b["fill"], y, m, power=2)
         else:
             l1 = L.masked_hole_loss(out, y, m, power=2 if c.hole_loss == "l2_hole" else 1)
         loss = c.inpaint_adv_weight * adv + c.l1_weight * l1
@@ -466,7 +480,8 @@ def train(
     for step in bar:
         stage = config.stage_at(step)
         images, holes = data(step, config.batch_size)
-        batch = prepare_batch(images[rows], holes[rows], config.sigma, config.prefill)
+        batch = prepare_batch(images[rows], holes[rows], config.sigma, config.prefill,
+                              config.blend_distance if config.hole_loss == "l2_blend" else 0.0)
         t0 = time.perf_counter()
         logs, outs = trainer.step(stage, batch)
         dt = time.perf_counter() - t0
