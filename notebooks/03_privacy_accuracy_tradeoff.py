@@ -32,8 +32,8 @@
 #    (`train/tradeoff.py` runs the same loop for real),
 # 3. shows the Pareto front of `experiments/pareto_tradeoff.py` from its results file.
 #
-# Set `PRIVSLAM_NB_TINY=1` for a short run (the test suite does): a smaller world, two steps and a
-# one-level alignment.
+# Set `PRIVSLAM_NB_TINY=1` for a short run (the test suite does): a smaller world, two steps of a
+# width-4 network instead of the embedded one, a one-level alignment and the detector at the frames' size.
 
 # %%
 import dataclasses
@@ -51,7 +51,7 @@ import numpy as np
 from privslam_jax.data.synthetic import SynthConfig, make_sequence
 from privslam_jax.detect.predict import EMBEDDED_WEIGHTS
 from privslam_jax.detect.weights import load_detector
-from privslam_jax.inpaint.filter import Inpainter, filter_frame
+from privslam_jax.inpaint.filter import Inpainter, InpainterConfig, filter_frame
 from privslam_jax.inpaint.masks import instance_masks
 from privslam_jax.tradeoff import DetectorModel, accuracy_loss, fidelity_loss, privacy_loss
 from privslam_jax.tradeoff.train import TradeoffConfig, train_tradeoff
@@ -59,8 +59,9 @@ from privslam_jax.tradeoff.train import TradeoffConfig, train_tradeoff
 TINY = os.environ.get("PRIVSLAM_NB_TINY", "0") == "1"
 config = TradeoffConfig(steps=2 if TINY else 20, frames_per_world=8 if TINY else 60, world_seeds=(1000,),
                         checkpoint_every=1000)
-if TINY:  # the alignment on one pyramid level instead of three: smaller programs to compile
-    config = dataclasses.replace(config, alignment=dataclasses.replace(config.alignment, levels=1))
+if TINY:  # the alignment on one pyramid level instead of three and the detector at the frames' size: smaller programs
+    config = dataclasses.replace(config, alignment=dataclasses.replace(config.alignment, levels=1),
+                                 detector_input_hw=(config.height, config.width))
 print(("tiny run" if TINY else "full run") + f": {config.width}x{config.height} frames, {config.steps} steps")
 
 # %% [markdown]
@@ -135,7 +136,8 @@ plt.show()
 
 # %%
 workdir = Path(tempfile.mkdtemp()) / "tradeoff"
-trained = train_tradeoff(config, inpainter, detector_params, detector, workdir, progress=False)
+start = Inpainter.init(InpainterConfig(width=4, num_residual_blocks=1)) if TINY else inpainter  # tiny: a width-4 net
+trained = train_tradeoff(config, start, detector_params, detector, workdir, progress=False)
 log = np.genfromtxt(workdir / "log.csv", delimiter=",", names=True)
 log = np.atleast_1d(log)
 print(f"trained {len(log)} steps: loss {log['loss'][0]:.4f} -> {log['loss'][-1]:.4f} "
