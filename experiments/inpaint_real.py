@@ -25,9 +25,9 @@ Command::
 Default models: the embedded real-domain checkpoint (with its inference settings: the mean of the
 fill and the mirrored crop's mirrored fill, blended with Telea at full resolution, the network's share
 1 − exp(−d / 3) at distance d from the visible pixels in model pixels), the same weights with the
-share 0.85 · (1 − exp(−d / 5 px)) in frame pixels of the previous settings (2026-12-07), the same weights
-without any of them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 13 min on 2 cores. Needs ``../shared`` (exits with a
-message without it).
+share 0.85 · (1 − exp(−d / 5 px)) in frame pixels of the previous settings (2026-12-07), the same
+weights without any of them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 9 min on
+2 cores. Needs ``../shared`` (exits with a message without it).
 """
 
 from __future__ import annotations

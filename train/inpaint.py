@@ -26,8 +26,9 @@ Rerunning the same command resumes from ``WORKDIR/checkpoints``. Writes PNG samp
 ``WORKDIR/samples`` and the losses to ``WORKDIR/log.csv``; ``--export`` writes the generators as
 an :class:`~privslam_jax.inpaint.filter.Inpainter` ``.npz`` usable by ``privslam filter``, with the
 inference settings ``--export-flip-average``, ``--export-prefill-blend`` and
-``--export-prefill-blend-distance`` (in ``--export-prefill-blend-unit``) in its config (:class:`~privslam_jax.inpaint.filter.InpainterConfig`;
-the real-frame checkpoint's are on, 0.85 and 5 px).
+``--export-prefill-blend-distance`` (in ``--export-prefill-blend-unit``) in its config
+(:class:`~privslam_jax.inpaint.filter.InpainterConfig`; the real-frame checkpoint's are on, 1 and 3
+model pixels).
 """
 
 from __future__ import annotations
