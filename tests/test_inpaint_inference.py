@@ -193,7 +193,8 @@ def test_settings_are_checked_and_saved(tmp_path):
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match=">= 0 pixels and finite"):
             InpainterConfig(prefill="telea", prefill_blend_distance=bad)
-    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.8, prefill_blend_distance=5.0)
+    inp = _with(Inpainter.init(TINY, seed=2), flip_average=True, prefill_blend=0.8, prefill_blend_distance=5.0,
+                prefill_blend_unit="model")
     inp.save(tmp_path / "m.npz")
     back = Inpainter.load(tmp_path / "m.npz")
     assert back.config == inp.config
@@ -204,3 +205,9 @@ def test_settings_are_checked_and_saved(tmp_path):
     np.savez(tmp_path / "bad.npz", **arrays)
     with pytest.raises(InputError, match="bad.npz"):
         Inpainter.load(tmp_path / "bad.npz")
+    for unit in (np.asarray("metres"), np.asarray(3.0)):  # a unit it does not know, or not a string
+        arrays = dict(np.load(tmp_path / "m.npz"))
+        arrays["config/prefill_blend_unit"] = unit
+        np.savez(tmp_path / "unit.npz", **arrays)
+        with pytest.raises(InputError, match="unit.npz"):
+            Inpainter.load(tmp_path / "unit.npz")
