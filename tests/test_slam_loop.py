@@ -1,4 +1,4 @@
-"""Loop closing inside the SLAM system on a small synthetic loop (one block, 192 m a lap; 200 stereo frames 1 m apart), judged by ground truth."""
+"""Loop closing inside the SLAM system on a small synthetic loop (one block, 192 m a lap; 140 stereo frames 1.4 m apart), judged by ground truth."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ pytestmark = pytest.mark.xla_optimized  # SLAM on whole sequences (tests/conftes
 
 @pytest.fixture(scope="module")
 def loop_world():
-    seq = make_sequence(SynthConfig(num_frames=200, speed=10.0, seed=11, stereo=True, route="loop", loop_blocks=(1, 1)))
+    seq = make_sequence(SynthConfig(num_frames=140, speed=14.0, seed=11, stereo=True, route="loop", loop_blocks=(1, 1)))
 
     def grey(img):
         return cv2.cvtColor((np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)

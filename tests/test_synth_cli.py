@@ -133,14 +133,18 @@ def _synth_main(argv):
     return args.func(args)
 
 
+# The frame sizes below are ones other files render in the same XLA mode (tests/test_synthetic.py):
+# the suite's shared compilation cache then hands this file the renderer instead of compiling it.
+
+
 def test_cli_writes_and_reads_back(tmp_path, capsys):
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
 
-    rc = _synth_main(["synth", "--out", str(tmp_path), "--frames", "3", "--width", "64", "--height", "32", "--stereo",
+    rc = _synth_main(["synth", "--out", str(tmp_path), "--frames", "3", "--width", "640", "--height", "192", "--stereo",
                "--name", "t", "--quiet"])
     assert rc == 0
     assert "3 frames" in capsys.readouterr().out
-    seq = make_sequence(SynthConfig(width=64, height=32, num_frames=3, seed=0, stereo=True))
+    seq = make_sequence(SynthConfig(width=640, height=192, num_frames=3, seed=0, stereo=True))
     _check_roundtrip(seq, tmp_path / "sequences/t", stereo=True)
 
 
@@ -157,7 +161,7 @@ def test_instance_ids_reader_and_slam_ignore_masked_needs_masks(tmp_path, capsys
     from privslam_jax.cli import main
     from privslam_jax.data.kitti import KittiSequence
 
-    _synth_main(["synth", "--out", str(tmp_path), "--frames", "2", "--width", "64", "--height", "32", "--name", "t",
+    _synth_main(["synth", "--out", str(tmp_path), "--frames", "2", "--width", "160", "--height", "48", "--name", "t",
                  "--quiet"])
     seq_dir = tmp_path / "sequences/t"
     seq = KittiSequence(seq_dir)
