@@ -6,6 +6,10 @@ Command::
     python benchmarks/suite_time.py --from F   # only summarise an earlier run's JSON lines
     python benchmarks/suite_time.py --from F --write-order tests/file_seconds.json
 
+With the per-test rows it prints the programs compiled because the shared compilation cache did not
+hold them: their seconds, how many of those a key compiled before accounts for (the same program
+compiled twice, e.g. by both workers at once), the seconds per size band and the largest programs.
+
 ``--write-order`` writes each file's wall seconds, the costs by which ``tests/conftest.py`` hands the
 files to the xdist workers longest first (rerun it when files are added or their cost changes much).
 
@@ -61,6 +65,20 @@ def main() -> None:
             w[1] = max(w[1], r["start"] + r["wall"] - t0)
     for name, (busy, end) in sorted(workers.items()):
         print(f"worker {name}: busy {busy:.0f} s, last test ended at {end:.0f} s")
+    misses = [(m[0], m[1], m[2], r["id"]) for r in rows for m in r.get("misses", [])]
+    if misses:  # what the compile seconds are: programs the shared cache did not hold, by key
+        first: dict[str, str] = {}
+        again = 0.0
+        for _, key, secs, test in misses:
+            again += secs if key in first else 0.0
+            first.setdefault(key, test)
+        print(f"compiled (persistent-cache misses): {len(misses)} programs, {sum(m[2] for m in misses):.0f} s; "
+              f"under a key compiled before: {again:.0f} s")
+        for lo, hi in ((5.0, float("inf")), (0.5, 5.0), (0.0, 0.5)):
+            band = [m[2] for m in misses if lo <= m[2] < hi]
+            print(f"  programs of {lo:g}-{hi:g} s: {len(band)}, {sum(band):.0f} s")
+        for name, _, secs, test in sorted(misses, key=lambda m: -m[2])[:args.top]:
+            print(f"  {secs:6.1f} s  {name:<28} {test}")
     print(f"per-test rows: {path}")
     if args.write_order:
         seconds = {name: round(f["wall"], 1) for name, f in sorted(files.items(), key=lambda kv: -kv[1]["wall"])}

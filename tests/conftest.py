@@ -132,18 +132,38 @@ def pytest_configure(config):
 
 
 class _TestTimes:
-    """Appends ``{"id", "wall", "start", "worker", "<event>": seconds}`` per test to ``$PRIVSLAM_TEST_TIMES`` (one JSON line
-    each; every xdist worker appends), the events being JAX's ``/jax/core/compile/*_duration``:
-    tracing, lowering and XLA compilation in this process (not in subprocesses it starts)."""
+    """Appends ``{"id", "wall", "start", "worker", "<event>": seconds, "misses": [...]}`` per test to
+    ``$PRIVSLAM_TEST_TIMES`` (one JSON line each; every xdist worker appends), the events being JAX's
+    ``/jax/core/compile/*_duration``: tracing, lowering and XLA compilation in this process (not in
+    subprocesses it starts).  ``misses`` lists ``[program, persistent-cache key, seconds]`` for each
+    program compiled because the compilation cache did not hold it (JAX's "PERSISTENT COMPILATION
+    CACHE MISS" debug record, then the compile event that follows it), so a program two tests compile
+    under one key shows up."""
 
     def __init__(self, path: str):
         import collections
         import jax.monitoring
 
-        self.path, self.seconds = path, collections.Counter()
-        jax.monitoring.register_event_duration_secs_listener(
-            lambda event, secs, **kw: self.seconds.update({event.rsplit("/", 1)[-1]: secs})
-            if event.startswith("/jax/core/compile/") else None)
+        self.path, self.seconds, self.misses, self.pending = path, collections.Counter(), [], None
+        outer = self
+
+        class Misses(logging.Handler):
+            def emit(self, record: logging.LogRecord) -> None:
+                if record.getMessage().startswith("PERSISTENT COMPILATION CACHE MISS"):
+                    outer.pending = [str(a) for a in record.args[:2]]
+
+        compiler_log = logging.getLogger("jax._src.compiler")
+        compiler_log.addHandler(Misses(logging.DEBUG))
+        compiler_log.setLevel(logging.DEBUG)
+        jax.monitoring.register_event_duration_secs_listener(self._event)
+
+    def _event(self, event: str, secs: float, **kwargs) -> None:
+        if not event.startswith("/jax/core/compile/"):
+            return
+        self.seconds.update({event.rsplit("/", 1)[-1]: secs})
+        if event.endswith("backend_compile_duration") and self.pending is not None:
+            self.misses.append([*self.pending, secs])
+            self.pending = None
 
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(self, item, nextitem):
@@ -151,9 +171,10 @@ class _TestTimes:
         import time
 
         self.seconds.clear()
+        self.misses = []
         start, begun = time.perf_counter(), time.time()
         yield
         row = {"id": item.nodeid, "wall": time.perf_counter() - start, "start": begun,
-               "worker": os.environ.get("PYTEST_XDIST_WORKER", "main"), **self.seconds}
+               "worker": os.environ.get("PYTEST_XDIST_WORKER", "main"), **self.seconds, "misses": self.misses}
         with open(self.path, "a") as f:
             f.write(json.dumps(row) + "\n")
