@@ -42,7 +42,12 @@ def main() -> None:
         env = dict(os.environ, PRIVSLAM_TEST_TIMES=str(path))
         subprocess.run([sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadfile", "-q"], cwd=root, env=env,
                        check=False)
-    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    try:
+        rows = [json.loads(line) for line in path.read_text().splitlines()]
+        if not rows or not all(isinstance(r, dict) and "id" in r and "wall" in r for r in rows):
+            raise ValueError("no per-test rows with 'id' and 'wall'")
+    except (OSError, ValueError) as err:  # a missing, empty or foreign file: say so, exit 2
+        ap.error(f"cannot read per-test rows from {path}: {err}")
     files: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for r in rows:
         f = files[r["id"].split("::")[0]]
@@ -67,11 +72,11 @@ def main() -> None:
         print(f"worker {name}: busy {busy:.0f} s, last test ended at {end:.0f} s")
     misses = [(m[0], m[1], m[2], r["id"]) for r in rows for m in r.get("misses", [])]
     if misses:  # what the compile seconds are: programs the shared cache did not hold, by key
-        first: dict[str, str] = {}
+        seen: set[str] = set()
         again = 0.0
-        for _, key, secs, test in misses:
-            again += secs if key in first else 0.0
-            first.setdefault(key, test)
+        for _, key, secs, _ in misses:
+            again += secs if key in seen else 0.0
+            seen.add(key)
         print(f"compiled (persistent-cache misses): {len(misses)} programs, {sum(m[2] for m in misses):.0f} s; "
               f"under a key compiled before: {again:.0f} s")
         for lo, hi in ((5.0, float("inf")), (0.5, 5.0), (0.0, 0.5)):
