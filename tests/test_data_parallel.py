@@ -23,7 +23,7 @@ import jax
 import numpy as np
 import pytest
 
-from privslam_jax.sharding import data_mesh, shard_batch
+from privslam_jax.sharding import data_mesh, local_rows, shard_batch
 
 def _write_dataset(root: Path) -> Path:
     """A YOLO dataset of 8 textured 64x64 frames with two coloured boxes each (classes 0, 1) at ``root/ds``."""
@@ -54,6 +54,23 @@ def test_one_device_needs_no_mesh_and_a_batch_must_divide():
         data_mesh(10_000)
     with pytest.raises(ValueError, match="at least 1"):
         data_mesh(0)
+
+
+def test_each_process_loads_its_own_block_of_rows(monkeypatch):
+    """``local_rows``: process p of P loads rows [p·B/P, (p+1)·B/P) of a global batch of B; the blocks
+    of all processes tile the batch once; a batch that does not divide is refused."""
+    import privslam_jax.sharding as sharding
+
+    assert local_rows(6) == slice(0, 6)  # one process: every row
+    for count in (2, 3):
+        monkeypatch.setattr(sharding.jax, "process_count", lambda count=count: count)
+        blocks = []
+        for p in range(count):
+            monkeypatch.setattr(sharding.jax, "process_index", lambda p=p: p)
+            blocks.append(list(range(12))[local_rows(12)])
+        assert blocks == [list(range(12))[i * 12 // count:(i + 1) * 12 // count] for i in range(count)]
+        with pytest.raises(ValueError, match="cannot be split"):
+            local_rows(count + 1)
 
 
 def _free_port() -> int:
@@ -157,7 +174,8 @@ def test_inpainter_on_two_processes_then_one_process_ends_where_one_process_ends
     assert np.median(rel) <= 1e-5 and excess <= 2 * lr * 4, (np.median(rel), excess)
 
 
-@pytest.mark.parametrize("accuracy_weight", [0.0, pytest.param(1.0, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("accuracy_weight", [0.0, 1.0])
 def test_tradeoff_on_two_processes_then_one_process_ends_where_one_device_ends(tmp_path, accuracy_weight):
     """``train/tradeoff.py --distributed`` as two processes (a mesh of two devices, one per process,
     each making its own pair of every 2-pair batch) trains one step and checkpoints; the same command
@@ -170,8 +188,12 @@ def test_tradeoff_on_two_processes_then_one_process_ends_where_one_device_ends(t
     The first batch's losses are the mean of its two pairs' losses, each taken alone (one pair a
     step). Process 0 alone writes the log and the export.
 
-    With λ_a = 1 the photometric alignment's solver loops run over the split batch too; that case
-    compiles about twice as much and runs with ``-m slow``."""
+    With λ_a = 1 the photometric alignment's solver loops run over the split batch too.  Both cases
+    are left to ``-m slow`` (λ_a = 0 took 85 s of the README's test command), which checks the parts
+    of this run one by one instead: the two-process and process-count-changing machinery with the
+    detector and the inpainter above, the trade-off trainer's share of every batch with
+    ``tests/test_tradeoff_train.py::test_a_process_makes_its_own_pairs_of_every_batch``, and its
+    resume with ``test_a_killed_run_resumes_to_the_same_weights`` in that file."""
     import dataclasses
 
     from flax import nnx

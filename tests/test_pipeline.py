@@ -334,16 +334,17 @@ def test_run_without_ground_truth_skips_the_metrics_with_a_note(tmp_path, capsys
 def test_stereo_ground_truth_masks_filter_the_right_frames_too(tmp_path):
     """``privslam synth --stereo`` writes the right camera's ids (``masks_3/``, equal to the renderer's);
     ``filter --masks gt`` then hides the objects in the right frames with them: pixels outside the
-    dilated right masks untouched, inside changed; and the pipeline runs stereo SLAM on ground-truth masks."""
+    dilated right masks untouched, inside changed; and the pipeline runs stereo SLAM on ground-truth masks.
+    (320×96: a stereo size other files render, so the suite's compilation cache holds the renderer.)"""
     from privslam_jax.data.images import read_raw
     from privslam_jax.data.synthetic import SynthConfig, make_sequence
     from privslam_jax.inpaint.masks import instance_masks
 
     root = tmp_path / "s"
-    assert main(["synth", "--out", str(root), "--frames", "3", "--width", "160", "--height", "64", "--stereo",
+    assert main(["synth", "--out", str(root), "--frames", "3", "--width", "320", "--height", "96", "--stereo",
                  "--seed", "2", "--quiet"]) == 0
     seq_dir = root / "sequences" / "synth"
-    rendered = make_sequence(SynthConfig(width=160, height=64, num_frames=3, seed=2, stereo=True))
+    rendered = make_sequence(SynthConfig(width=320, height=96, num_frames=3, seed=2, stereo=True))
     assert main(["filter", str(seq_dir), "--out", str(tmp_path / "f"), "--method", "black", "--masks", "gt"]) == 0
     out = tmp_path / "f" / "sequences" / "synth"
     changed = 0

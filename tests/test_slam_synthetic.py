@@ -106,15 +106,16 @@ def test_tracking_another_world_compiles_no_program_per_frame(mode, count_compil
     """Once a run has built its programs, SLAM on another world of the same size builds (almost) none:
     solver calls are padded to size buckets and host arrays go to the device as transfers.  (In jax
     0.10 an eager ``jnp.asarray`` of a host array, or a slice of a device array, compiles a program
-    for every new length; refinement did both once per frame, 350 compilations in 120 frames.)"""
+    for every new length; refinement did both once per frame, 350 compilations in 120 frames.)
+    Runs of 24 frames tell the two apart."""
 
     def run(seed):
-        seq = make_sequence(SynthConfig(num_frames=36, seed=seed, stereo=True))
+        seq = make_sequence(SynthConfig(num_frames=24, seed=seed, stereo=True))
         items = [(f.image, f.image_right) if mode == "stereo" else f.image for f in seq]
         return run_slam(items, seq.camera, SlamConfig(mode=mode), timestamps=seq.timestamps)
 
     run(1)
     with count_compiles() as names:
         res = run(2)
-    assert res.tracked.sum() >= 30, res.events
+    assert res.tracked.sum() >= 20, res.events
     assert len(names) <= 4, names  # a new size bucket of local BA may appear; not one per frame

@@ -28,6 +28,7 @@ from privslam_jax.tradeoff.train import (
     TradeoffConfig,
     _compiled_step,
     sample_of,
+    synthetic_batches,
     synthetic_pairs,
     tradeoff_step,
     train_tradeoff,
@@ -151,6 +152,33 @@ def test_an_unconverged_alignment_drops_the_accuracy_term_instead_of_writing_nan
         assert np.all(np.isfinite(a))
         np.testing.assert_array_equal(a, b)
     assert any(not np.array_equal(a, p) for a, p in zip(jax.tree.leaves(runs[1.0].state), jax.tree.leaves(init.state)))
+
+
+def test_a_process_makes_its_own_pairs_of_every_batch(case):
+    """``synthetic_batches`` with one process's rows (:func:`~privslam_jax.sharding.local_rows`) makes
+    exactly those pairs of every batch: two processes' streams side by side are the one-process
+    batches; a stream started at batch ``start`` (a resumed run) goes on as the uninterrupted one;
+    the pairs do not depend on the batch size (``synthetic_pairs``)."""
+    import itertools
+
+    model = case[0]
+    cfg = dataclasses.replace(BASE, batch_size=2)
+    whole = list(itertools.islice(synthetic_batches(cfg, model), 3))
+    halves = [list(itertools.islice(synthetic_batches(cfg, model, rows), 3)) for rows in (slice(0, 1), slice(1, 2))]
+    resumed = next(synthetic_batches(cfg, model, slice(1, 2), start=2))
+    pairs = list(itertools.islice(synthetic_pairs(cfg, model), 6))
+
+    def same(a, b):
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+            np.testing.assert_array_equal(x, y)
+
+    for b in range(3):
+        assert len(whole[b]) == 2 and len(halves[0][b]) == len(halves[1][b]) == 1
+        for i in (0, 1):
+            same(halves[i][b][0], whole[b][i])
+            same(pairs[2 * b + i], whole[b][i])
+    same(resumed[0], whole[2][1])
+    assert len({pair.target.tobytes() for batch in whole for pair in batch}) > 1  # not one pair over and over
 
 
 def test_a_killed_run_resumes_to_the_same_weights(case, tmp_path):
