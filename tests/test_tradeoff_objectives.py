@@ -295,12 +295,17 @@ def _param_direction(params, rng):
     return nnx.from_flat_state(flat)
 
 
+@pytest.mark.slow
 def test_fidelity_loss_through_the_filter_matches_finite_differences_in_the_inpainter_params():
     """``L_fid(filter_image(φ, x, M), background, M)`` on a tiny random EdgeConnect (width 4, one
     residual block, as tests/test_filter_image.py), the left 96×128 of the synthetic frame with two
     objects, float64: d/dφ against central differences along 2 random directions, step 1e-8 (the
     generators are ReLU networks: a random direction crosses a kink within ~1e-6), relative
-    error ≤ 1e-3 (measured 1.1e-8 and 5.5e-9)."""
+    error ≤ 1e-3 (measured 1.1e-8 and 5.5e-9).  Left to ``-m slow`` (it took 13 s of the README's
+    test command), which checks the same composition in pieces: ``filter_image``'s gradient
+    (``tests/test_filter_image.py::test_gradients_match_finite_differences``), ``fidelity_loss``
+    against numpy (above), and the fidelity term's gradient in the inpainter's parameters through the
+    training step (``tests/test_tradeoff_train.py::test_each_term_gradient_matches_finite_differences``)."""
     img, masks, background = _synth()
     img = (np.float32(0.05) + np.float32(0.9) * img[:, :128]).astype(np.float32)  # off the clip kinks
     masks = masks[:, :, :128]
