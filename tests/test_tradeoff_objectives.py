@@ -6,8 +6,9 @@ References, all independent of ``privslam_jax/tradeoff``:
   world (``T_t_r = T_w_t⁻¹ T_w_r``), and a closed-form warp — a textured fronto-parallel plane seen
   after a known motion, each target pixel's ray intersected with the plane in numpy;
 * gradients: central finite differences in float64 along random directions (relative error ≤ 1e-3);
-* privacy: the box coverage against a per-pixel numpy overlap; the embedded detector scores a frame
-  with its objects higher than the same frame filtered by the embedded EdgeConnect;
+* privacy: the box coverage against a per-pixel numpy overlap; the soft maximum against the largest
+  coverage-weighted probability recomputed in numpy; the embedded detector scores a frame with its
+  objects higher than the same frame filtered by the embedded EdgeConnect;
 * fidelity: a plain numpy mean.
 """
 
@@ -211,40 +212,55 @@ def _synth():
 TAU = 2e-4
 
 
-def test_privacy_loss_gradient_matches_finite_differences():
-    """d L_priv / d(image) on a tiny random YOLOv8, the left 96×128 of the synthetic frame and its
-    masks plus one large mask, float64.  The random net's probabilities are ~1e-4–1e-3 and its boxes
-    120–480 px wide (coverage ≤ 0.08), so the temperature is scaled to them, τ = 2e-4 (with τ = 0.05
-    the loss is ≈ τ·log(A·C) plus a 1e-10 variation, below float64 finite differences): central differences along a
-    random direction with the gradient's signs (a fully random one gives a cancelling sum, measured
-    1e-10, at the level of rounding), step 1e-6, relative error ≤ 1e-3 (measured 4e-7).  The loss is a soft
-    maximum: it lies within τ·log(A·C) above the largest coverage-weighted probability (checked)."""
+def _privacy_case():
+    """The left 96×128 of the synthetic frame, its object masks plus one large mask, and the tiny
+    random YOLOv8 (float64).  The random net's probabilities are ~1e-4–1e-3 and its boxes 120–480 px
+    wide (coverage ≤ 0.08), so the temperature is scaled to them, τ = 2e-4 (with τ = 0.05 the loss is
+    ≈ τ·log(A·C) plus a 1e-10 variation, below float64 finite differences)."""
     img, masks, _ = _synth()
     img, masks = img[:, :128], masks[:, :, :128]
     masks = masks[masks.any(axis=(1, 2))]
     big = np.zeros((1, 96, 128), bool)
     big[0, 8:88, 8:120] = True  # the tiny random net's boxes are large: most cover the objects' masks little
-    masks = np.concatenate([masks, big])
-    rng = np.random.default_rng(3)
-    with jax.enable_x64(True):
-        det, params = _tiny_detector()
-        vg = jax.jit(jax.value_and_grad(lambda x: privacy_loss(params, x, masks, det, temperature=TAU)))
-        x = jnp.asarray(img, jnp.float64)
-        value, g = vg(x)
-        assert np.abs(np.asarray(g)).max() > 0
-        orthant = jnp.asarray(np.abs(rng.standard_normal(x.shape)) * np.sign(np.asarray(g)))
-        print("privacy FD relative error", _check_fd(lambda y: vg(y)[0], x, g, orthant, 1e-6))
-        # bound of the soft maximum, recomputed from the raw decoded head
-        from privslam_jax.detect.decode import decode_head
-        from privslam_jax.detect.predict import PRIVACY_CLASSES
+    return img, np.concatenate([masks, big]), *_tiny_detector()
 
+
+def test_privacy_loss_is_a_soft_maximum_of_the_coverage_weighted_probabilities():
+    """``L_priv`` lies within τ·log(A·C) above the mean over masks of the largest coverage-weighted
+    privacy-class probability, recomputed in numpy from the raw decoded head (``_privacy_case``);
+    no mask, no loss."""
+    from privslam_jax.detect.decode import decode_head
+    from privslam_jax.detect.predict import PRIVACY_CLASSES
+
+    img, masks, det, params = _privacy_case()
+    with jax.enable_x64(True):
+        x = jnp.asarray(img, jnp.float64)
+        value = float(jax.jit(lambda x: privacy_loss(params, x, masks, det, temperature=TAU))(x))
         out = np.asarray(decode_head(nnx.merge(det.graphdef, params)(x[None]))[0])
         cover = np.asarray(anchor_mask_coverage(jnp.asarray(out[:, :4]), masks))
         s = cover[:, :, None] * out[None, :, 4:][:, :, list(PRIVACY_CLASSES)]
         mx = s.reshape(len(masks), -1).max(axis=1)
-        n = s[0].size
-        assert mx.mean() <= float(value) <= mx.mean() + TAU * np.log(n)
+        assert mx.mean() <= value <= mx.mean() + TAU * np.log(s[0].size), (mx.mean(), value)
         assert float(privacy_loss(params, x, np.zeros_like(masks), det)) == 0.0
+
+
+@pytest.mark.slow
+def test_privacy_loss_gradient_matches_finite_differences():
+    """d L_priv / d(image) on ``_privacy_case``, float64: central differences along a random direction
+    with the gradient's signs (a fully random one gives a cancelling sum, measured 1e-10, at the level
+    of rounding), step 1e-6, relative error ≤ 1e-3 (measured 4e-7).  Left to ``-m slow`` (it took 20 s
+    of the README's test command), which checks the privacy term's gradient through the filter, in the
+    inpainter's parameters, against finite differences of the same loss
+    (``tests/test_tradeoff_train.py::test_each_term_gradient_matches_finite_differences``)."""
+    img, masks, det, params = _privacy_case()
+    rng = np.random.default_rng(3)
+    with jax.enable_x64(True):
+        vg = jax.jit(jax.value_and_grad(lambda x: privacy_loss(params, x, masks, det, temperature=TAU)))
+        x = jnp.asarray(img, jnp.float64)
+        _, g = vg(x)
+        assert np.abs(np.asarray(g)).max() > 0
+        orthant = jnp.asarray(np.abs(rng.standard_normal(x.shape)) * np.sign(np.asarray(g)))
+        print("privacy FD relative error", _check_fd(lambda y: vg(y)[0], x, g, orthant, 1e-6))
 
 
 def test_privacy_loss_of_the_embedded_detector_drops_when_the_objects_are_filtered():
