@@ -255,25 +255,20 @@ def _report_checks(out, report):
     assert report["timings_s"] and all(v > 0 for v in report["timings_s"].values())
 
 
-def test_run_writes_a_report_a_person_reads(tmp_path):
-    out = tmp_path / "run"
-    assert main(["run", "--out", str(out), "--frames", "10", "--masks", "gt", "--filter", "telea", "--lift-seed", "1",
-                 "--quiet"]) == 0
+def test_run_writes_a_report_a_person_reads(gt_run):
+    out, _, _ = gt_run
     _report_checks(out, json.loads((out / "report.json").read_text()))
 
 
-def test_report_html_renders_offline_in_a_headless_browser(tmp_path):
-    """Chromium (no network: every host name unresolvable) loads every figure of report.html."""
+def test_report_html_renders_offline_in_a_headless_browser(gt_run, tmp_path):
+    """Chromium (no network: every host name unresolvable) loads every figure of the run's report.html."""
     import shutil
     import subprocess
 
     browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
     if browser is None:
         pytest.skip("no headless Chromium (.ci/run installs the Debian package)")
-    out = tmp_path / "run"
-    assert main(["run", "--out", str(out), "--frames", "10", "--masks", "gt", "--filter", "gray", "--lift-seed", "1",
-                 "--quiet"]) == 0
-    page = (out / "report.html").read_text()
+    page = (gt_run[0] / "report.html").read_text()
     probe = ('<script>addEventListener("load",()=>{const i=[...document.images];document.body.setAttribute('
              '"data-check",i.length+" "+i.filter(x=>x.complete&&x.naturalWidth>0).length+" "+'
              'document.querySelectorAll("table").length)})</script>')
