@@ -179,7 +179,7 @@ def test_inpainter_on_two_processes_then_one_process_ends_where_one_process_ends
 def test_tradeoff_on_two_processes_then_one_process_ends_where_one_device_ends(tmp_path, accuracy_weight):
     """``train/tradeoff.py --distributed`` as two processes (a mesh of two devices, one per process,
     each making its own pair of every 2-pair batch) trains one step and checkpoints; the same command
-    in one process on one device resumes it to step 2. Its filter
+    in one process on one device resumes it to step 2. With λ_a = 0 its filter
     equals two steps of one device on the same batches (``train_tradeoff`` in this process) as the
     inpainter tests require, with Adam's sign-like first steps in mind: the median tensor within 1e-4
     of its largest magnitude (measured 1.5e-5; pairs on the wrong process give about lr / 0.5 = 2e-3),
@@ -188,8 +188,15 @@ def test_tradeoff_on_two_processes_then_one_process_ends_where_one_device_ends(t
     The first batch's losses are the mean of its two pairs' losses, each taken alone (one pair a
     step). Process 0 alone writes the log and the export.
 
-    With λ_a = 1 the photometric alignment's solver loops run over the split batch too.  Both cases
-    are left to ``-m slow`` (λ_a = 0 took 85 s of the README's test command), which checks the parts
+    With λ_a = 1 the photometric alignment's float32 solver loops run over the split batch too.  Its
+    answer is reproducible only to about 1e-3 across compilations of one program (it stops after its
+    iteration budget, wandering in a flat float32 valley), and Adam's first step is the sign of each
+    gradient, so there (and with λ_a = 0 as well) the weights are compared by the direction of the
+    filter's update: sign agreement ≥ 0.98 and cosine ≥ 0.97 with the one-device update.  Measured 2026-12-07: two processes
+    against one device 0.993 / 0.990; the same one-device run compiled with and without XLA's
+    optimisations against each other 0.994 / 0.993 (and median tensor 3.2e-2, as two processes: 3.8e-2);
+    a one-device run on the pairs of another world (the control, run here too) 0.53 / 0.02.
+    Both cases are left to ``-m slow`` (λ_a = 0 took 85 s of the README's test command), which checks the parts
     of this run one by one instead: the two-process and process-count-changing machinery with the
     detector and the inpainter above, the trade-off trainer's share of every batch with
     ``tests/test_tradeoff_train.py::test_a_process_makes_its_own_pairs_of_every_batch``, and its
@@ -243,6 +250,18 @@ def test_tradeoff_on_two_processes_then_one_process_ends_where_one_device_ends(t
     a, b, c = ([np.asarray(x) for m in net.modules for x in jax.tree.leaves(nnx.state(m))]
                for net in (ref, Inpainter.load(tmp_path / "out.npz"), tiny))
     assert len(a) == len(b) > 10
+    other = train_tradeoff(dataclasses.replace(config, world_seeds=(8,)), tiny, det_params, detector, tmp_path / "other",
+                           progress=False)  # the control: the same steps on other pairs
+    update = {k: np.concatenate([(x - z).ravel() for x, z in zip(w, c)]) for k, w in (
+        ("one device", a), ("two processes", b),
+        ("other pairs", [np.asarray(x) for m in other.modules for x in jax.tree.leaves(nnx.state(m))]))}
+    agree = {k: (float(np.mean(np.sign(u) == np.sign(update["one device"]))),
+                 float(u @ update["one device"] / np.linalg.norm(u) / np.linalg.norm(update["one device"])))
+             for k, u in update.items() if k != "one device"}
+    assert agree["two processes"][0] >= 0.98 and agree["two processes"][1] >= 0.97, agree
+    assert agree["other pairs"][1] < 0.5, agree  # the criterion tells the right pairs from other ones
+    if accuracy_weight:
+        return
     rel = np.asarray([np.abs(x - y).max() / (np.abs(x).max() + 1e-12) for x, y in zip(a, b)])
     excess = max(float((np.abs(x - y) - 1e-3 * np.abs(x).max()).max()) for x, y in zip(a, b))
     moved = max(float(np.abs(x - y).max()) for x, y in zip(a, c))
