@@ -25,7 +25,9 @@ would mask, its false positives, and its cost, so that users can pick a privacy 
 Configurations per detector: the paper's threshold 0.4; the recall threshold 0.1; test-time
 augmentation (letterbox 640 and 960, each flipped; :func:`~privslam_jax.detect.temporal.detect_tta`);
 propagation over ±3 frames (high 0.4 / low 0.1; (b) only, (a) and (c) have no neighbouring frames); and
-their combinations. ms/frame is wall time of detection (+ flow) on this machine, one run.
+their combinations; and grey frames (each frame made grey first, as most SLAM cameras and KITTI's
+``image_0`` give them), scored against the same references. ms/frame is wall time of detection
+(+ flow) on this machine, one run.
 
 Detectors: the two embedded ones (``privslam_jax/assets``: synthetic-world and real-frame), the imported ultralytics YOLOv8n
 (``../shared/weights/yolov8n.pt``: a test and evaluation input only) and any ``--weights``.
@@ -47,6 +49,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,20 +68,25 @@ from privslam_jax.detect.temporal import PropagationConfig, dense_flow, flow_gre
 from privslam_jax.metrics.detection import RecallCounts, privacy_recall  # noqa: E402
 
 TYPES = ("Car", "Van", "Truck", "Pedestrian", "Cyclist")
-CONFIGS = [  # (name, conf, tta, propagate)
-    ("conf 0.4 (paper)", 0.4, False, 0),
-    ("conf 0.1", 0.1, False, 0),
-    ("TTA, conf 0.4", 0.4, True, 0),
-    ("TTA, conf 0.1", 0.1, True, 0),
-    ("propagate ±3, conf 0.4", 0.4, False, 3),
-    ("TTA + propagate ±3, conf 0.4", 0.4, True, 3),
-    ("TTA + propagate ±3, conf 0.1 (README's real-frame example)", 0.1, True, 3),
+CONFIGS = [  # (name, conf, tta, propagate, grey frames)
+    ("conf 0.4 (paper)", 0.4, False, 0, False),
+    ("conf 0.1", 0.1, False, 0, False),
+    ("TTA, conf 0.4", 0.4, True, 0, False),
+    ("TTA, conf 0.1", 0.1, True, 0, False),
+    ("propagate ±3, conf 0.4", 0.4, False, 3, False),
+    ("TTA + propagate ±3, conf 0.4", 0.4, True, 3, False),
+    ("TTA + propagate ±3, conf 0.1 (README's real-frame example)", 0.1, True, 3, False),
+    ("grey frames, conf 0.4", 0.4, False, 0, True),
+    ("grey frames, TTA, conf 0.1", 0.1, True, 0, True),
 ]
 
 
 def run_config(det: Detector, images: list[np.ndarray], conf: float, tta: bool, propagate: int,
-               runs: list[tuple[int, int]]) -> tuple[list, float]:
-    """Detections of every image under one configuration and ms per frame."""
+               runs: list[tuple[int, int]], grey: bool = False) -> tuple[list, float]:
+    """Detections of every image under one configuration and ms per frame; ``grey``: of the frames
+    made grey first (OpenCV's RGB → grey, as a grey camera or KITTI's ``image_0`` gives them)."""
+    if grey:
+        images = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in images]
     det = det.with_config(dataclasses.replace(det.config, conf=conf))
     prop = PropagationConfig(window=propagate, high_conf=conf, low_conf=0.1) if propagate else None
     det.detect(images[:1])  # compile outside the clock
@@ -175,13 +183,13 @@ def main(argv: list[str] | None = None) -> int:
 
     rows = []
     for name, det in detectors:
-        for cname, conf, tta, prop in CONFIGS:
+        for cname, conf, tta, prop, grey in CONFIGS:
             ko_res = ko_ms = nus_res = None
             if not prop:
-                dets, ko_ms = run_config(det, ko_images, conf, tta, 0, [(0, len(ko_images))])
+                dets, ko_ms = run_config(det, ko_images, conf, tta, 0, [(0, len(ko_images))], grey)
                 ko_res = score(dets, ko_labels)
-                nus_res = score(run_config(det, nus_images, conf, tta, 0, [(0, len(nus_images))])[0], nus_labels)
-            dets, raw_ms = run_config(det, raw_images, conf, tta, prop, raw_runs)
+                nus_res = score(run_config(det, nus_images, conf, tta, 0, [(0, len(nus_images))], grey)[0], nus_labels)
+            dets, raw_ms = run_config(det, raw_images, conf, tta, prop, raw_runs, grey)
             raw_res = score(dets, raw_labels)
             rows.append((name, cname, ko_res, ko_ms, raw_res, raw_ms, nus_res))
             print(name, cname, "kitti_object", None if ko_res is None else f"{ko_res.recall:.3f} fp {ko_res.fp_per_image:.2f}",
