@@ -1,4 +1,4 @@
-"""``privslam filter``: remove the privacy objects of a KITTI-layout sequence and fill the holes.
+"""``privslam filter``: remove the privacy objects of a folder of frames or a KITTI-layout sequence and fill the holes.
 
 ``privslam filter SEQUENCE [--method M] --out DIR [--masks gt|detect] [--detector PATH] [--model PATH]``
 
@@ -51,12 +51,13 @@ __all__ = ["add_parser", "run"]
 def add_parser(subparsers) -> None:
     from privslam_jax.inpaint.filter import FILTER_METHODS
 
-    p = subparsers.add_parser("filter", help="remove privacy objects from a KITTI-layout sequence",
+    p = subparsers.add_parser("filter", help="remove privacy objects from a folder of frames or a KITTI-layout sequence",
                               description=__doc__.split("\n\n")[0])
-    p.add_argument("sequence", type=Path, help="sequence folder (…/sequences/<name>)")
+    p.add_argument("sequence", type=Path,
+                   help="a plain folder of frames (name order = time order) or a KITTI-layout sequence (…/sequences/<name>)")
     p.add_argument("--method", default="edgeconnect", choices=FILTER_METHODS, metavar="METHOD",
-                   help="edgeconnect (default: the embedded checkpoint, +2 dB PSNR over Telea on held-out "
-                        "synthetic frames) | tradeoff (the embedded inpainter trained for privacy and SLAM accuracy, "
+                   help="edgeconnect (default: the embedded checkpoint made for the frames, synthetic-world on "
+                        "privslam synth outputs, real-frame elsewhere; docs/model_card_inpainter*.md) | tradeoff (the embedded inpainter trained for privacy and SLAM accuracy, "
                         "docs/tradeoff.md) | " + " | ".join(FILTER_METHODS[2:]))
     p.add_argument("--out", type=Path, required=True, help="output root (sequences/<name> is created)")
     p.add_argument("--masks", choices=("gt", "detect"), default=None,
