@@ -156,6 +156,13 @@ def main(argv: list[str] | None = None) -> int:
     if shared is None:
         print("table1b needs ../shared (real frames, yolov8n.pt); set PRIVSLAM_SHARED", file=sys.stderr)
         return 2
+    needed = {"weights/yolov8n.pt": None, "data/real/kitti_object/image_2": "*.png",
+              "data/real/kitti_raw_a/frames": "*.png", "data/real/nuscenes_front/images": "*.png"}
+    missing = [rel for rel, pattern in needed.items()
+               if not ((shared / rel).is_file() if pattern is None else any((shared / rel).glob(pattern)))]
+    if missing:  # before any work: a set that is not there would end the run half-way
+        print(f"table1b needs these in {shared}: {', '.join(missing)}", file=sys.stderr)
+        return 2
     t_start = time.time()
     preset = DetectorConfig(conf=0.4, classes=PRIVACY_CLASSES)
     detectors = [("embedded synthetic-world YOLOv8n", Detector.embedded(preset)),

@@ -41,6 +41,21 @@ def test_table1b_refuses_a_bad_weights_spec(table1b, suffix, message, tmp_path, 
     assert not (tmp_path / "t.md").exists()
 
 
+def test_table1b_refuses_a_shared_folder_without_its_sets(table1b, tmp_path, capsys, monkeypatch):
+    """A ``../shared`` that lacks one of the evaluation sets is refused before any work, naming it."""
+    shared = tmp_path / "shared"
+    (shared / "weights").mkdir(parents=True)
+    (shared / "weights" / "yolov8n.pt").write_bytes(b"")
+    for rel in ("data/real/kitti_object/image_2", "data/real/kitti_raw_a/frames"):
+        (shared / rel).mkdir(parents=True)
+        (shared / rel / "000000.png").write_bytes(b"")
+    monkeypatch.setenv("PRIVSLAM_SHARED", str(shared))
+    assert table1b.main(["--out", str(tmp_path / "t.md")]) == 2
+    err = capsys.readouterr().err
+    assert "data/real/nuscenes_front/images" in err and "kitti_object" not in err
+    assert not (tmp_path / "t.md").exists()
+
+
 @pytest.mark.parametrize("kind, message", [("missing", "not found"), ("corrupt", "bad.npz"), ("no-name", "NAME=PATH")])
 def test_inpaint_real_refuses_a_bad_model(inpaint_real, kind, message, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("PRIVSLAM_SHARED", str(tmp_path / "absent"))  # refused before ../shared is needed
