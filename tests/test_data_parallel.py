@@ -266,7 +266,4 @@ def test_tradeoff_on_two_processes_then_one_process_ends_where_one_device_ends(t
     rel = np.asarray([np.abs(x - y).max() / (np.abs(x).max() + 1e-12) for x, y in zip(a, b)])
     excess = max(float((np.abs(x - y) - 1e-3 * np.abs(x).max()).max()) for x, y in zip(a, b))
     moved = max(float(np.abs(x - y).max()) for x, y in zip(a, c))
-    off = np.mean(np.concatenate([(np.abs(x - y) > 1e-4 * np.abs(x).max()).ravel() for x, y in zip(a, b)]))
-    assert np.median(rel) <= 1e-4 and excess <= 2 * lr * 2 and moved > lr, (
-        f"median tensor {np.median(rel):.2e}, excess {excess:.2e}, moved {moved:.2e}, weights off by > 1e-4: "
-        f"{off:.1%}; accuracy term of steps 1, 2: one device {ref_log['accuracy']}, two processes {got['accuracy']}")
+    assert np.median(rel) <= 1e-4 and excess <= 2 * lr * 2 and moved > lr, (np.median(rel), excess, moved)
