@@ -93,8 +93,9 @@ class PipelineConfig:
     """Detection threshold (``None``: the privacy preset's 0.4)."""
     tta: bool = False
     """Test-time augmentation of the detector (:func:`privslam_jax.detect.temporal.detect_tta`)."""
-    propagate: int = 0
-    """Carry detections to this many frames before and after by optical flow (0: off)."""
+    propagate: int | None = None
+    """Carry detections to this many frames before and after by optical flow (0: off; ``None``: 3 on real
+    frames, 0 on the synthetic world, :data:`privslam_jax.inpaint.sequence.REAL_FRAME_PROPAGATION`)."""
     mode: str = "mono"
     """SLAM input: ``"mono"`` or ``"stereo"`` (the right images are filtered with their own detections, or with
     the right camera's ground-truth masks for ``masks="gt"``)."""
@@ -196,6 +197,8 @@ class FilterStage:
         """Printable lines: what was filtered, what leaked, and the detector's privacy warning if any."""
         source = ("ground-truth masks" if self.masks == "gt" else
                   f"detections of {'the embedded detector' if self.detector == 'embedded' else Path(self.detector).name}")
+        if self.report.get("detector", {}).get("propagate"):
+            source += f" carried ±{self.report['detector']['propagate']} frames"
         line = f"privacy filter: {self.method} on {source} -> {self.sequence or 'memory'}"
         if self.leak is not None:
             leak = self.leak

@@ -61,10 +61,19 @@ def test_filter_picks_the_embedded_detector_for_the_frames(tmp_path):
         assert main(["filter", str(seq), "--masks", "detect", "--method", "black", "--out", str(tmp_path / "o")]) == 0
     report = json.loads((tmp_path / "o" / "sequences" / "s" / "filter_report.json").read_text())
     assert report["detector"]["weights"] == str(EMBEDDED_REAL_WEIGHTS) and report["detector"]["domain"] == "real"
+    # recall first on real frames: propagation over ±3 frames unless asked otherwise; the manifest says so too
+    manifest = json.loads((tmp_path / "o" / "sequences" / "s" / "manifest.json").read_text())
+    assert report["detector"]["propagate"] == 3 and "--propagate" not in report["detector"]["privacy_warning"]
+    assert manifest["arguments"]["propagate"] == 3
+    with pytest.warns(UserWarning, match="PRIVACY WARNING.*--propagate 3"):
+        assert main(["filter", str(seq), "--masks", "detect", "--method", "black", "--propagate", "0",
+                     "--out", str(tmp_path / "o0")]) == 0
+    assert json.loads((tmp_path / "o0" / "sequences" / "s" / "filter_report.json").read_text())["detector"]["propagate"] == 0
     seq_syn = _real_like_sequence(tmp_path / "syn", synthetic=True)
     assert main(["filter", str(seq_syn), "--masks", "detect", "--method", "black", "--out", str(tmp_path / "o2")]) == 0
     report = json.loads((tmp_path / "o2" / "sequences" / "s" / "filter_report.json").read_text())
     assert report["detector"]["weights"] == str(EMBEDDED_WEIGHTS) and report["detector"]["privacy_warning"] is None
+    assert report["detector"]["propagate"] == 0  # the paper's per-frame detection on the synthetic world
 
 
 class _Fake:
@@ -85,6 +94,9 @@ def test_check_detector_domain():
     # a real-domain detector whose measured recall is low runs, with the number in a warning
     with pytest.warns(UserWarning, match="PRIVACY WARNING.*0.07.*--tta"):
         assert "misses" in check_detector_domain(_Fake("real", card), sequence_is_synthetic=False, allow_mismatch=False)
+    with pytest.warns(UserWarning, match="PRIVACY WARNING"):  # the knobs it suggests are those not in use
+        text = check_detector_domain(_Fake("real", card), sequence_is_synthetic=False, allow_mismatch=False, propagate=3)
+    assert "--tta and --conf 0.1" in text and "--propagate" not in text
     high = {"real_recall": {"recall": 0.95, "fp_per_image": 1.0}}
     assert check_detector_domain(_Fake("real", high), sequence_is_synthetic=False, allow_mismatch=False) is None
 
@@ -238,3 +250,36 @@ def test_filter_picks_the_embedded_inpainter_for_the_frames(tmp_path):
         assert main(["filter", str(seq), "--masks", "detect", "--method", "tradeoff", "--out", str(tmp_path / "o_t")]) == 0
     inp = json.loads((tmp_path / "o_t" / "sequences" / "s" / "filter_report.json").read_text())["inpainter"]
     assert inp["weights"] == "embedded (tradeoff)"
+
+
+@pytest.mark.shared
+def test_default_filter_hides_the_close_car_that_one_frame_misses(shared, tmp_path):
+    """Seven real grey KITTI ``seq1`` frames (22-28) filtered with the defaults: the large parked car of
+    frame 25, licence plate readable, that the embedded real-frame detector scores below 0.4 there
+    but finds in the frames around it, is masked, as every object the imported YOLOv8n finds there
+    at conf ≥ 0.6 (the reference, independent of the filter). With propagation off (the source
+    paper's per-frame detection) it stays visible: the default is what hides it."""
+    from privslam_jax.data.images import read_image
+    from privslam_jax.detect import PRIVACY_CLASSES
+
+    src = shared / "data" / "kitti_odometry" / "sequences" / "seq1"
+    seq = tmp_path / "sequences" / "seq1"
+    (seq / "image_0").mkdir(parents=True)
+    (seq / "calib.txt").write_bytes((src / "calib.txt").read_bytes())
+    for i in range(22, 29):
+        (seq / "image_0" / f"{i:06d}.png").write_bytes((src / "image_0" / f"{i:06d}.png").read_bytes())
+    ref = Detector.from_weights(shared / "weights" / "yolov8n.pt", DetectorConfig(conf=0.6, classes=PRIVACY_CLASSES))
+    boxes = np.asarray(ref.detect([read_image(src / "image_0" / "000025.png")])[0].boxes).round().astype(int)
+    assert len(boxes) >= 1 and max(y2 - y1 for _, y1, _, y2 in boxes) > 150  # the close car
+
+    def coverage(out):
+        mask = cv2.imread(str(out / "sequences" / "seq1" / "masks" / "000025.png"), cv2.IMREAD_UNCHANGED) > 0
+        return [float(mask[y1:y2, x1:x2].mean()) for x1, y1, x2, y2 in boxes]
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # the real-frame detector's recall warning
+        assert main(["filter", str(seq), "--masks", "detect", "--method", "black", "--out", str(tmp_path / "d")]) == 0
+        assert main(["filter", str(seq), "--masks", "detect", "--method", "black", "--propagate", "0",
+                     "--out", str(tmp_path / "p0")]) == 0
+    assert min(coverage(tmp_path / "d")) >= 0.9, coverage(tmp_path / "d")
+    assert min(coverage(tmp_path / "p0")) < 0.5, coverage(tmp_path / "p0")

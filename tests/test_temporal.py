@@ -16,6 +16,7 @@ from privslam_jax.detect.temporal import (
     PROPAGATED,
     PropagationConfig,
     box_flow,
+    consecutive_runs,
     dense_flow,
     detect_sequence,
     detect_tta,
@@ -181,3 +182,27 @@ def test_detect_sequence_lowers_the_threshold_only_with_propagation():
 
     detect_sequence(Recording(), frames, PropagationConfig(window=1, high_conf=0.4, low_conf=0.05))
     assert seen == [0.05]
+
+
+def test_runs_follow_the_sequence_step_and_break_at_larger_gaps():
+    """Against a plain re-implementation: a run is a maximal stretch whose neighbouring numbers differ
+    by the smallest positive difference of the whole sequence."""
+    def reference(ids):
+        if not ids:
+            return []
+        step = min([b - a for a, b in zip(ids, ids[1:]) if b > a] or [1])
+        runs, start = [], 0
+        for i in range(1, len(ids) + 1):
+            if i == len(ids) or ids[i] - ids[i - 1] != step:
+                runs.append((start, i))
+                start = i
+        return runs
+
+    assert consecutive_runs(range(0, 91, 3)) == [(0, 31)]  # every third frame (kitti_raw_b): one run
+    assert consecutive_runs(list(range(40)) + list(range(220, 260))) == [(0, 40), (40, 80)]  # two drives
+    assert consecutive_runs([0, 3, 6, 12, 15]) == [(0, 3), (3, 5)]  # a dropped frame ends a run
+    assert consecutive_runs([7]) == [(0, 1)] and consecutive_runs([]) == []
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        ids = np.cumsum(rng.choice([-1, 0, 1, 1, 2, 2, 2, 5], size=int(rng.integers(0, 12)))).tolist()
+        assert consecutive_runs(ids) == reference(ids), ids

@@ -20,7 +20,8 @@ detections) and, with ``--masks gt``, when the right camera's ground-truth ids e
 or our ``.npz``; default the embedded detector made for the frames: the synthetic-world one on a
 ``privslam synth`` output, the real-frame one elsewhere) with the paper's privacy preset (person, bicycle,
 car, motorcycle, bus, truck at confidence 0.4, ``--conf`` to change it) and masks its boxes;
-``--tta`` and ``--propagate K`` raise recall (:mod:`privslam_jax.detect.temporal`). A detector
+``--tta`` and ``--propagate K`` raise recall (:mod:`privslam_jax.detect.temporal`; ``--propagate``
+defaults to 3 frames on real frames, recall first, and to 0 on ``privslam synth`` output). A detector
 whose checkpoint says it was trained on the synthetic world only is refused on a sequence that
 is not a ``privslam synth`` output (one without ``background/``) unless
 ``--allow-domain-mismatch`` is given, and then the run warns. ``filter_report.json`` records the
@@ -67,9 +68,10 @@ def add_parser(subparsers) -> None:
                    help="EdgeConnect Inpainter .npz (for edgeconnect or tradeoff; default: the embedded checkpoint)")
     p.add_argument("--conf", type=unit_interval, default=None,
                    help="detection threshold (default 0.4, the paper's; lower it for recall, see docs/detector.md)")
-    p.add_argument("--propagate", type=nonnegative_int, default=0, metavar="K",
+    p.add_argument("--propagate", type=nonnegative_int, default=None, metavar="K",
                    help="carry each detection to the K frames before and after it by optical flow, where the "
-                        "detector missed the object (recall-first; docs/detector.md)")
+                        "detector missed the object (recall-first; default 3 on real frames, 0 on privslam synth "
+                        "output; 0 turns it off; docs/detector.md)")
     p.add_argument("--tta", action="store_true", help="test-time augmentation: letterbox 640 and 960, each also flipped")
     p.add_argument("--allow-domain-mismatch", action="store_true",
                    help="run a detector trained on the synthetic world only on real frames anyway (it misses most objects)")

@@ -39,8 +39,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="detector weights (default: the embedded detector made for the frames' domain)")
     p.add_argument("--conf", type=unit_interval, default=None, help="detection threshold (default 0.4)")
     p.add_argument("--tta", action="store_true", help="detector test-time augmentation (recall-first)")
-    p.add_argument("--propagate", type=nonnegative_int, default=0, metavar="K",
-                   help="carry detections to the K frames before and after by optical flow (recall-first)")
+    p.add_argument("--propagate", type=nonnegative_int, default=None, metavar="K",
+                   help="carry detections to the K frames before and after by optical flow (recall-first; "
+                        "default 3 on a real SEQUENCE, 0 on the synthetic one; 0 turns it off)")
     p.add_argument("--inpainter", default=None, metavar="PATH",
                    help="EdgeConnect checkpoint for --filter edgeconnect or tradeoff (default: the embedded inpainter)")
     p.add_argument("--mode", choices=("mono", "stereo"), default=d.mode, help=f"SLAM input (default {d.mode})")

@@ -40,8 +40,8 @@ import numpy as np
 from privslam_jax.detect.decode import box_iou, nms
 from privslam_jax.types import Detections
 
-__all__ = ["PropagationConfig", "propagate_detections", "box_flow", "dense_flow", "flow_grey", "detect_tta", "detect_sequence", "DETECTED", "PROMOTED",
-           "PROPAGATED"]
+__all__ = ["PropagationConfig", "propagate_detections", "box_flow", "dense_flow", "flow_grey", "detect_tta", "detect_sequence",
+           "consecutive_runs", "DETECTED", "PROMOTED", "PROPAGATED"]
 
 DETECTED, PROMOTED, PROPAGATED = 0, 1, 2
 """Origin of a box: a high-score detection, a low-score detection confirmed by a track, a propagated box."""
@@ -227,6 +227,25 @@ def detect_tta(detector, images: Sequence[np.ndarray], scales: Sequence[float] =
         keep = np.asarray(keep, np.int64)
         out.append(Detections(boxes=jnp.asarray(b[keep]), scores=jnp.asarray(s[keep]), class_ids=jnp.asarray(c[keep])))
     return out
+
+
+def consecutive_runs(frame_numbers: Sequence[int]) -> list[tuple[int, int]]:
+    """``[start, stop)`` index ranges of frames sampled at the sequence's step, within which
+    propagation may carry boxes.
+
+    The step is the smallest increase between neighbouring frame numbers; a run ends wherever the
+    numbers jump by more (a dropped frame, another drive in the same folder) or do not increase.
+    So every frame of ``0, 1, 2, …`` is one run, and so is a sequence kept at every third frame
+    (``0, 3, 6, …``: flow still follows the objects over that step), while ``0 … 39, 220 … 259``
+    is two.
+    """
+    ids = [int(x) for x in frame_numbers]
+    if not ids:
+        return []
+    steps = [b - a for a, b in zip(ids, ids[1:])]
+    step = min((d for d in steps if d > 0), default=1)
+    cuts = [0] + [i + 1 for i, d in enumerate(steps) if d != step] + [len(ids)]
+    return list(zip(cuts[:-1], cuts[1:]))
 
 
 def detect_sequence(detector, images: Sequence[np.ndarray], propagation: PropagationConfig | None = None,

@@ -27,7 +27,7 @@ from privslam_jax.data.files import write_atomic
 from privslam_jax.data.images import write_image_file
 from privslam_jax.runs import check_run_folder, claim_run_folder, complete_run_folder
 
-__all__ = ["RECALL_WARNING_BELOW", "FilteredFrame", "FilteredFrames", "check_detector_domain", "filter_frames",
+__all__ = ["RECALL_WARNING_BELOW", "REAL_FRAME_PROPAGATION", "FilteredFrame", "FilteredFrames", "check_detector_domain", "filter_frames",
            "filter_sequence", "filter_sequence_in_memory", "iter_filtered", "write_filtered"]
 
 
@@ -63,25 +63,31 @@ class _FrameFolder:
 
 
 def _consecutive_runs(stems: list[str]) -> list[tuple[int, int]]:
-    """``[start, stop)`` index ranges of consecutively numbered frames (one run if names are not numbers)."""
-    if not all(t.isdigit() for t in stems):
-        return [(0, len(stems))]
-    ids = [int(t) for t in stems]
-    cuts = [0] + [i for i in range(1, len(ids)) if ids[i] != ids[i - 1] + 1] + [len(ids)]
-    return list(zip(cuts[:-1], cuts[1:]))
+    """Runs of evenly numbered frames (:func:`~privslam_jax.detect.temporal.consecutive_runs`; one
+    run if the names are not numbers)."""
+    from privslam_jax.detect.temporal import consecutive_runs
+
+    return consecutive_runs([int(t) for t in stems]) if all(t.isdigit() for t in stems) else [(0, len(stems))]
 
 
 RECALL_WARNING_BELOW = 0.9
 """A detector whose measured real-frame recall is below this gets a PRIVACY WARNING on real frames."""
 
+REAL_FRAME_PROPAGATION = 3
+"""Default ``propagate`` on frames that are not a ``privslam synth`` output: each detection carried
+to the 3 frames before and after it (recall first; its effect on held-out real frames in
+``results/table1b_real_recall.md``, ``kitti_raw_b``). On ``privslam synth`` output the default stays
+0, the source paper's per-frame detection."""
 
-def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch: bool) -> str | None:
+
+def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch: bool, propagate: int = 0) -> str | None:
     """Refuse, or warn about, a detector that will miss objects in these frames.
 
     On frames that are not a ``privslam synth`` output: a detector trained on the synthetic world
     only is refused (``ValueError``) unless ``allow_mismatch``, then warned about; any detector
     whose checkpoint states a real-frame recall below :data:`RECALL_WARNING_BELOW` is warned about
-    with that number. Returns the warning text (``None`` without one). A privacy filter that
+    with that number, and with the recall knobs not yet in use (``propagate``: the window the
+    filter runs with). Returns the warning text (``None`` without one). A privacy filter that
     quietly finds nothing on frames it does not understand leaks every object in them.
     """
     import warnings
@@ -104,7 +110,8 @@ def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch:
     elif isinstance(recall, dict) and recall["recall"] < RECALL_WARNING_BELOW:
         text = (f"the detector {name} misses people and vehicles in real frames ({measured}; on grey frames and on "
                 "frames of other cameras it misses more, results/table1b_real_recall.md); raise recall with "
-                "--tta, --conf 0.1 and --propagate 3, or use a stronger detector (docs/detector.md)")
+                + ("--tta and --conf 0.1" if propagate else "--tta, --conf 0.1 and --propagate 3")
+                + ", or use a stronger detector (docs/detector.md)")
     else:
         return None
     warnings.warn("PRIVACY WARNING: " + text, PrivacyWarning, stacklevel=2)
@@ -243,7 +250,7 @@ class _Images(Sequence):
 
 
 def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector_path: Path | None,
-                 model_path: Path | None, dilation: int, conf: float | None, propagate: int, tta: bool,
+                 model_path: Path | None, dilation: int, conf: float | None, propagate: int | None, tta: bool,
                  allow_domain_mismatch: bool) -> _Plan:
     """Open ``sequence``, pick the detector and inpainter, run the detector over every frame (refusing bad
     frames before anything is written) and return the per-frame mask source and the report."""
@@ -275,7 +282,9 @@ def _plan_filter(sequence: Path, method: str, masks_source: str | None, detector
             detector = Detector.from_weights(detector_path, preset)
         else:  # the embedded detector made for these frames
             detector = Detector.embedded(preset, domain="synthetic" if synthetic else "real")
-        mismatch = check_detector_domain(detector, synthetic, allow_domain_mismatch)
+        if propagate is None:
+            propagate = 0 if synthetic else REAL_FRAME_PROPAGATION
+        mismatch = check_detector_domain(detector, synthetic, allow_domain_mismatch, propagate)
         propagation = (PropagationConfig(window=propagate, high_conf=preset.conf, low_conf=min(0.1, preset.conf))
                        if propagate else None)
         report["detector"] = {"weights": detector.meta.get("path", "embedded"), "domain": detector.domain,
@@ -381,7 +390,7 @@ def filter_sequence(
     seed: int = 0,
     progress: bool = True,
     conf: float | None = None,
-    propagate: int = 0,
+    propagate: int | None = None,
     tta: bool = False,
     allow_domain_mismatch: bool = False,
     overwrite: bool = False,
@@ -394,7 +403,9 @@ def filter_sequence(
 
     With ``masks_source="detect"`` the detector runs over the whole sequence first (threshold
     ``conf``, default the paper's 0.4; ``tta`` and ``propagate`` as in
-    :func:`privslam_jax.detect.temporal.detect_sequence`), then each frame is filled.
+    :func:`privslam_jax.detect.temporal.detect_sequence`; ``propagate=None``:
+    :data:`REAL_FRAME_PROPAGATION` frames on real frames, 0 on ``privslam synth`` output), then each
+    frame is filled.
     ``method="edgeconnect"`` without ``model_path`` uses the embedded inpainter made for the frames:
     the synthetic-world one on ``privslam synth`` output, the real-frame one on anything else;
     ``method="tradeoff"`` the embedded trade-off checkpoint (trained on the synthetic world).
@@ -413,7 +424,7 @@ def filter_sequence(
 
 def _run_filter(sequence: Path, out: Path | None, method: str, *, masks_source: str | None = None,
                 detector_path: Path | None = None, model_path: Path | None = None, dilation: int = 4, seed: int = 0,
-                progress: bool = True, conf: float | None = None, propagate: int = 0, tta: bool = False,
+                progress: bool = True, conf: float | None = None, propagate: int | None = None, tta: bool = False,
                 allow_domain_mismatch: bool = False, overwrite: bool = False, keep: bool = False
                 ) -> tuple[FilteredFrames | None, dict, Path | None]:
     kitti = any((sequence / d).is_dir() for d in ("image_2", "image_0"))
@@ -438,7 +449,8 @@ def _run_filter(sequence: Path, out: Path | None, method: str, *, masks_source: 
     if out_dir is not None:
         manifest = claim_run_folder(out_dir, "filter", {
             "sequence": str(sequence), "method": method, "masks": plan.report["masks"], "detector": detector_path,
-            "model": model_path, "dilation": dilation, "seed": seed, "conf": conf, "propagate": propagate, "tta": tta,
+            "model": model_path, "dilation": dilation, "seed": seed, "conf": conf,
+            "propagate": plan.report.get("detector", {}).get("propagate", propagate), "tta": tta,
             "allow_domain_mismatch": allow_domain_mismatch}, overwrite, companions)
         for name in ("calib.txt", "times.txt"):
             if (seq.path / name).is_file():
