@@ -283,3 +283,22 @@ def test_default_filter_hides_the_close_car_that_one_frame_misses(shared, tmp_pa
                      "--out", str(tmp_path / "p0")]) == 0
     assert min(coverage(tmp_path / "d")) >= 0.9, coverage(tmp_path / "d")
     assert min(coverage(tmp_path / "p0")) < 0.5, coverage(tmp_path / "p0")
+
+
+def test_client_filters_with_the_recall_options_of_the_filter_command(tmp_path, monkeypatch):
+    """``privslam client`` filters on the device as ``privslam filter`` does: ``--propagate`` and
+    ``--tta`` reach the same library call (default ``None``: the frames' domain decides)."""
+    import privslam_jax.inpaint.sequence as sequence_module
+
+    seq = _real_like_sequence(tmp_path / "real", synthetic=False)
+    calls = []
+
+    def stop(*args, **kwargs):
+        calls.append(kwargs)
+        raise ValueError("stopped before any frame left the device")
+
+    monkeypatch.setattr(sequence_module, "filter_sequence_in_memory", stop)
+    base = ["client", str(seq), "--server", "127.0.0.1:9", "--masks", "detect"]
+    assert main(base + ["--out", str(tmp_path / "o1"), "--propagate", "2", "--tta"]) == 2
+    assert main(base + ["--out", str(tmp_path / "o2")]) == 2
+    assert [(c["propagate"], c["tta"]) for c in calls] == [(2, True), (None, False)]

@@ -57,6 +57,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", type=Path, default=None, help="detector weights (.pt or .npz), as `privslam filter`")
     p.add_argument("--model", type=Path, default=None, help="EdgeConnect Inpainter .npz, as `privslam filter`")
     p.add_argument("--conf", type=unit_interval, default=None, help="detection threshold (default 0.4)")
+    p.add_argument("--propagate", type=nonnegative_int, default=None, metavar="K",
+                   help="carry detections to the K frames before and after by optical flow, as `privslam filter` "
+                        "(default 3 on real frames, 0 on privslam synth output)")
+    p.add_argument("--tta", action="store_true", help="detector test-time augmentation, as `privslam filter`")
     p.add_argument("--dilation", type=nonnegative_int, default=4, help="mask dilation in pixels (default 4)")
     p.add_argument("--allow-domain-mismatch", action="store_true",
                    help="run a detector trained on the synthetic world only on real frames anyway")
@@ -108,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
     seq = KittiSequence(args.sequence, stereo=args.mode == "stereo", grey=True)
     filtered, report, _ = filter_sequence_in_memory(
         args.sequence, args.method, masks_source=args.masks, detector_path=args.detector, model_path=args.model,
-        dilation=args.dilation, conf=args.conf, allow_domain_mismatch=args.allow_domain_mismatch, progress=True)
+        dilation=args.dilation, conf=args.conf, propagate=args.propagate, tta=args.tta,
+        allow_domain_mismatch=args.allow_domain_mismatch, progress=True)
     n = len(filtered) if args.max_frames is None else min(len(filtered), args.max_frames)
     depths = [seq[i].depth for i in range(n)] if args.mode == "rgbd" else None
     frames = device_frames(filtered, seq.timestamps, args.mode, depths)[:n]
