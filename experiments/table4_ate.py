@@ -8,8 +8,8 @@ order in which correspondences enter OpenCV's RANSAC (essential matrix, PnP), se
 issue 5 are these RANSAC seeds.
 
 Privacy variants (``--filters``, default ``edgeconnect,telea``): every sequence is first filtered as the
-edge device of the source paper would (``privslam filter --masks detect``): YOLOv8 with the privacy
-preset (person, bicycle, car, motorcycle, bus, truck; conf 0.4) finds the objects in each image,
+edge device of the source paper would (``privslam filter --masks detect --propagate 0``): YOLOv8 with the privacy
+preset (person, bicycle, car, motorcycle, bus, truck; conf 0.4) finds the objects in each image (per frame),
 left and right camera separately, and the chosen method fills their dilated boxes.  KITTI frames are
 detected with the imported COCO ``yolov8n.pt`` from ``../shared`` (the embedded detector never saw
 a photo), synthetic frames with the embedded detector.  SLAM then runs on the filtered frames with
@@ -246,7 +246,7 @@ def _filtered(sequence: Path, out: Path, method: str, detector: Path | None) -> 
     done = out / "sequences" / sequence.name
     if not run_is_complete(done):
         print(f"filtering {sequence} with {method} into {out}", flush=True)
-        filter_sequence(sequence, out, method, "detect", detector, overwrite=True)
+        filter_sequence(sequence, out, method, "detect", detector, propagate=0, overwrite=True)  # per frame, as the paper
     return done
 
 

@@ -7,7 +7,7 @@ grey frames, monocular) and a synthetic sequence (monocular, 640×192). The sour
 the filter's effect this way because it isolates what the filter changes from the SLAM's own
 error; the ATE against the ground truth is listed beside it.
 
-Method: each sequence is filtered once per method as ``privslam filter --masks detect`` does
+Method: each sequence is filtered once per method as ``privslam filter --masks detect --propagate 0`` does
 (:func:`privslam_jax.inpaint.sequence.filter_sequence`): KITTI with the imported COCO
 ``yolov8n.pt`` from ``../shared`` (``--kitti-detector`` to change it; the shared weights are an
 evaluation input), the synthetic sequence with the embedded synthetic-world detector. SLAM runs on
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
             for method in filters:
                 paths[method] = filter_sequence(seq, work / "filtered" / method / name.split(" (")[0].replace(" ", "_"),
                                                 method, masks_source="detect", detector_path=det, progress=False,
-                                                allow_domain_mismatch=True, overwrite=True)
+                                                propagate=0, allow_domain_mismatch=True, overwrite=True)  # per frame
                 print(f"filtered {name} with {method} ({time.time() - t_start:.0f} s)", flush=True)
             for label, path in paths.items():
                 for seed in range(a.seeds):

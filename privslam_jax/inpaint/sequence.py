@@ -108,8 +108,8 @@ def check_detector_domain(detector, sequence_is_synthetic: bool, allow_mismatch:
             raise ValueError(text + ". Give --detector a detector trained on real images (e.g. an ultralytics .pt you "
                              "own, see docs/detector.md), or pass --allow-domain-mismatch to run anyway.")
     elif isinstance(recall, dict) and recall["recall"] < RECALL_WARNING_BELOW:
-        text = (f"the detector {name} misses people and vehicles in real frames ({measured}; on grey frames and on "
-                "frames of other cameras it misses more, results/table1b_real_recall.md); raise recall with "
+        text = (f"the detector {name} misses people and vehicles in real frames ({measured}; on grey frames, on other "
+                "drives and on frames of other cameras it misses more, results/table1b_real_recall.md); raise recall with "
                 + ("--tta and --conf 0.1" if propagate else "--tta, --conf 0.1 and --propagate 3")
                 + ", or use a stronger detector (docs/detector.md)")
     else:
