@@ -194,8 +194,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "IRLS weight ρ'(s)² instead of ρ'(s) in the BA normal equations",
            BA),
     Mutant("ba-stereo-chi2-swapped", _BA,
-           "chi2 = jnp.where(is_st, config.chi2_stereo, config.chi2).astype(dtype)",
-           "chi2 = jnp.where(is_st, config.chi2, config.chi2_stereo).astype(dtype)",
+           "(config.huber_delta, config.chi2),\n                                                  (config.huber_delta_stereo, config.chi2_stereo)",
+           "(config.huber_delta, config.chi2_stereo),\n                                                  (config.huber_delta_stereo, config.chi2)",
            "χ² thresholds of stereo (3 dof) and monocular (2 dof) rows swapped",
            BA),
     Mutant("ba-pairs-off-by-one", _SC,
@@ -235,8 +235,10 @@ MUTANTS: tuple[Mutant, ...] = (
            "right update T·exp(ξ) with Jacobians of the left perturbation",
            REFINE),
     Mutant("refine-huber-delta-swapped", _RF,
-           "delta = jnp.where(stereo, config.huber_stereo, config.huber_mono).astype(dtype)",
-           "delta = jnp.where(stereo, config.huber_mono, config.huber_stereo).astype(dtype)",
+           "obs, stereo, delta, chi2 = observation_rows(uv, u_right, (config.huber_mono, config.chi2_mono),\n"
+           "                                                (config.huber_stereo, config.chi2_stereo), dtype)",
+           "obs, stereo, delta, chi2 = observation_rows(uv, u_right, (config.huber_stereo, config.chi2_mono),\n"
+           "                                                (config.huber_mono, config.chi2_stereo), dtype)",
            "Huber thresholds of stereo and monocular observations swapped",
            REFINE),
     Mutant("refine-information-dropped", _RF,
@@ -287,8 +289,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "pairing off by one: with an even count the last pair is left unpaired",
            LIFT),
     Mutant("lift-copies-own-direction", _LI,
-           "d = _directions(key, len(first))[inverse]",
-           "d = _directions(key, len(p))",
+           "d = d[inverse]  # repeated points share one line (module docstring)",
+           "d = _directions(key, len(p)) if ids is None else d[inverse]",
            "repeated points get distinct lines again (they meet at the secret point; issue 15 item 5)",
            LIFT),
     # ---- Line2Point -------------------------------------------------------------------------
@@ -513,6 +515,23 @@ MUTANTS: tuple[Mutant, ...] = (
            "tmin = np.where(d != 0, np.minimum(t1, t2), -np.inf).min(1)",
            "uniform baseline chord entry parameter min over axes instead of max (leaves the box)",
            PRIV),
+    # recall-first propagation on real frames (issue 13 item 3)
+    Mutant("runs-keep-non-increasing", "privslam_jax/detect/temporal.py",
+           "cuts = [0] + [i + 1 for i, d in enumerate(steps) if d != step] + [len(ids)]",
+           "cuts = [0] + [i + 1 for i, d in enumerate(steps) if d > step] + [len(ids)]",
+           "a repeated or backwards frame number does not end a run (boxes carried across it)",
+           ("tests/test_temporal.py",)),
+    Mutant("runs-unit-step", "privslam_jax/detect/temporal.py",
+           "step = min((d for d in steps if d > 0), default=1)",
+           "step = 1",
+           "runs assume a step of one frame: a sequence kept at every third frame is cut into single frames "
+           "(propagation silently off)",
+           ("tests/test_temporal.py",)),
+    Mutant("real-frames-default-per-frame", "privslam_jax/inpaint/sequence.py",
+           "propagate = 0 if synthetic else REAL_FRAME_PROPAGATION",
+           "propagate = 0",
+           "real frames filtered per frame by default (the recall-first default lost)",
+           ("tests/test_detector_domain.py",)),
 )
 
 
