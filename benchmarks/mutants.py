@@ -19,7 +19,7 @@ the copy (not the editable install), and the union of the selected tests must pa
 The list checks itself: every ``original`` snippet must occur exactly once in its file and every
 replacement must still compile, else the script stops (so the list stays true as the code changes).
 
-Not part of CI (too slow: 32 min for the whole list on the shared 2-core machine, docs/testing.md). Command::
+Not part of CI (too slow: 15 min for the whole list with ``--jobs 2`` on the 2-core machine, docs/testing.md). Command::
 
     python benchmarks/mutants.py                              # all mutants, one at a time
     python benchmarks/mutants.py --out results/mutants.md     # also write the table (atomically)
