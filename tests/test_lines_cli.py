@@ -57,7 +57,10 @@ def test_lift_attack_eval(tmp_path, capsys):
     paired = load_line_cloud(tmp_path / "a.ply")
     rec = np.asarray(load_point_cloud(tmp_path / "r_tpf.ply").xyz)
     assert rec.shape == pts.shape
-    assert np.max(np.linalg.norm(np.cross(rec, np.asarray(paired.directions)) - np.asarray(paired.moments), axis=1)) < 1e-3
+    off = np.linalg.norm(np.cross(rec, np.asarray(paired.directions)) - np.asarray(paired.moments), axis=1)
+    # on its line to float32 rounding: a nearly parallel pair (entropy keys: a new lift every run) puts its estimate
+    # tens of km away or more (measured: 0.0025 m off at 108 km, 1.1e-7 of the distance; 0.13 m in one CI run)
+    assert np.all(off < 1e-3 + 1e-6 * np.linalg.norm(rec, axis=1)), (off.max(), np.linalg.norm(rec, axis=1)[off.argmax()])
     # ray and sphere clouds: point i on line i, and every line through one of the 3 anchors / the centroid
     import jax
 
