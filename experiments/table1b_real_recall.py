@@ -196,8 +196,10 @@ def main(argv: list[str] | None = None) -> int:
     for set_name in ("kitti_raw_a", "kitti_raw_b"):
         paths = sorted((shared / "data" / "real" / set_name / "frames").glob("*.png"))
         images = [read_rgb8(q) for q in paths]
-        runs = consecutive_runs([int(q.stem) for q in paths])
+        numbers = [int(q.stem) for q in paths]
+        runs = consecutive_runs(numbers)
         consecutive[set_name] = (images, runs, yolo_reference(images, runs))
+    rb_span = numbers[-1] - numbers[0] + 1  # kitti_raw_b's frames are a subsample of this many
     raw_images, raw_runs, raw_labels = consecutive["kitti_raw_a"]
     n_ref = sum(len(x[0]) for x in raw_labels)
     rb_images, rb_runs, rb_labels = consecutive["kitti_raw_b"]
@@ -231,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         "(YOLOv8n conf ≥ 0.6 in the frame or its neighbours, carried by flow). "
         f"`nuscenes_front`: {len(nus_images)} keyframes of another camera and city, "
         f"{sum(len(x[0]) for x in nus_labels)} reference objects (YOLOv8n conf ≥ 0.6 in the frame; evaluation only). "
-        f"`kitti_raw_b`: {len(rb_images)} frames of another drive, every third of {3 * len(rb_images) - 2}, "
+        f"`kitti_raw_b`: {len(rb_images)} frames of another drive, kept from {rb_span} consecutive ones, "
         f"{sum(len(x[0]) for x in rb_labels)} reference objects (as for `kitti_raw_a`; evaluation only).",
         "",
         "| detector | configuration | kitti_object recall | FP / image | " + " | ".join(TYPES)
