@@ -163,14 +163,21 @@ def _np_huber_cost(x: Sim3, edges: np.ndarray, Z: Sim3, delta: float) -> float:
 
 def test_huber_solution_is_stationary(x64):
     """With a false loop edge and the Huber loss, the solution is a stationary point of the Huber cost
-    (central differences of a numpy re-implementation) and costs less than the squared-loss solution."""
+    (central differences of a numpy re-implementation) and costs less than the squared-loss solution.
+
+    ``delta`` = 0.1 puts most of the edges past the kink: with 0.5 every edge of both solutions stays
+    under it (the Sim(3) graph spreads the chord's error over the scales), the two solutions are the
+    same, and "costs less" was decided by float64 rounding (it failed on an AVX-512 machine by 3e-16)."""
     gt, edges, Z = _circle_graph(10, covisibility=True)
     bad = Z.retract(jnp.zeros((len(edges), 7)).at[-1].set(jnp.array([0.3, 0.0, 0.0, 5.0, 0.0, 3.0, 0.2])))
-    delta = 0.5
-    hub = optimize_pose_graph(gt, edges, bad, huber_delta=delta, max_iterations=200)
+    delta = 0.1
+    hub = optimize_pose_graph(gt, edges, bad, huber_delta=delta, max_iterations=200, function_tolerance=1e-16,
+                              parameter_tolerance=1e-13)
     sq = optimize_pose_graph(gt, edges, bad, max_iterations=200)
     assert bool(hub.summary.converged), hub.summary.describe()
-    assert _np_huber_cost(hub.poses, edges, bad, delta) < _np_huber_cost(sq.poses, edges, bad, delta)
+    assert np.sum(np.linalg.norm(np.asarray(edge_errors(hub.poses, jnp.asarray(edges), bad)), axis=1) > delta) >= 5
+    # measured: 0.17856 against 0.19116
+    assert _np_huber_cost(hub.poses, edges, bad, delta) < 0.97 * _np_huber_cost(sq.poses, edges, bad, delta)
     np.testing.assert_allclose(float(hub.summary.cost), _np_huber_cost(hub.poses, edges, bad, delta), rtol=1e-10)
     h = 1e-6
     grad = []
@@ -179,7 +186,7 @@ def test_huber_solution_is_stationary(x64):
             step = jnp.zeros((10, 7)).at[k, d].set(h)
             grad.append((_np_huber_cost(hub.poses.retract(step), edges, bad, delta)
                          - _np_huber_cost(hub.poses.retract(-step), edges, bad, delta)) / (2 * h))
-    assert np.max(np.abs(grad)) < 1e-6
+    assert np.max(np.abs(grad)) < 1e-7  # measured 7.6e-9
 
 
 def test_bad_input_refused(x64):

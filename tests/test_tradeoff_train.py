@@ -98,11 +98,13 @@ def f64_programs(case):
     return params, sgd, step, loss
 
 
-@pytest.mark.parametrize("privacy_weight, accuracy_weight, h", [(0.0, 0.0, 1e-8), (1.0, 0.0, 1e-8), (0.0, 1.0, 1e-7)])
-def test_each_term_gradient_matches_finite_differences(f64_programs, privacy_weight, accuracy_weight, h):
+@pytest.mark.parametrize("privacy_weight, accuracy_weight, h, rtol",
+                         [(0.0, 0.0, 1e-8, 1e-3), (1.0, 0.0, 1e-8, 1e-3), (0.0, 1.0, 1e-7, 3e-3)])
+def test_each_term_gradient_matches_finite_differences(f64_programs, privacy_weight, accuracy_weight, h, rtol):
     """One SGD step of rate 1 moves the parameters by −∂L/∂φ; that gradient against central
     differences of the directly composed ``L`` along a direction with the gradient's signs (relative
-    error ≤ 1e-3), for the fidelity term alone, with the privacy term, with the accuracy term.
+    error ≤ 1e-3; 3e-3 with the accuracy term), for the fidelity term alone, with the privacy term,
+    with the accuracy term.
 
     Every term needs a small step: the losses are only piecewise smooth in the parameters (the
     filter's clipping; the alignment's Huber loss has thousands of residuals near its kink), and the
@@ -110,7 +112,11 @@ def test_each_term_gradient_matches_finite_differences(f64_programs, privacy_wei
     over.  Measured relative errors for steps 1e-5 / 1e-6 / 1e-7 / 1e-8 / 1e-9: fidelity
     4.3e-3 / 6.7e-4 / 8.6e-5 / 8.2e-6 / 1.2e-9 (privacy the same to two digits); accuracy 3.2e-3 /
     1.6e-3 / 4.1e-4 / 2.2e-3 / 4.7e-3 (with the alignment's two pyramid levels it was 1.3e-2 / 5.4e-3 /
-    7.2e-5 / 2.5e-4 / 7.1e-3: the kinks, not the program, set the error)."""
+    7.2e-5 / 2.5e-4 / 7.1e-3: the kinks, not the program, set the error).  On an AVX-512 machine
+    (2026-12-07) the accuracy term gave 3.2e-3 / 1.7e-3 / 1.1e-3 / 2.7e-3 / 1.7e-2 for the same steps,
+    and 4e-4 to 1.6e-3 for steps between 3e-6 and 3e-8: which residuals cross a kink depends on the
+    last bits of the solve, so the error at one step wanders within that band.  A wrong gradient (a
+    dropped term, a transposed Jacobian) is off by far more."""
     params, sgd, step_fn, f = f64_programs
     with jax.enable_x64(True):
         w = jnp.asarray([privacy_weight, accuracy_weight], jnp.float64)
@@ -126,7 +132,7 @@ def test_each_term_gradient_matches_finite_differences(f64_programs, privacy_wei
         step = lambda s: jax.tree.map(lambda a, d: a + s * d, params, direction)  # noqa: E731
         fd = (float(f(step(h), w)) - float(f(step(-h), w))) / (2 * h)
         analytic = sum(float(jnp.vdot(g, d)) for g, d in zip(flat, jax.tree.leaves(direction)))
-        assert abs(fd - analytic) <= 1e-3 * abs(analytic), (fd, analytic)
+        assert abs(fd - analytic) <= rtol * abs(analytic), (fd, analytic)
     assert step_fn._cache_size() == f._cache_size() == 1  # the weights are an argument: one program each
 
 
