@@ -79,8 +79,15 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_detector_on_two_processes_then_two_devices_ends_where_one_device_ends(tmp_path):
-    """``train/detector.py --distributed`` as two processes of this machine (loopback coordinator, gloo
+    """Left to ``-m slow`` (81 s of the README's test command, its longest test), which checks instead:
+    two processes, collectives, each process's own rows and a changed process count with the
+    inpainter (below); the rows each process loads (``test_each_process_loads_its_own_block_of_rows``);
+    ``--devices 2`` (the inpainter's resumed run below); the detector's resume after a SIGKILL
+    (``tests/test_resume_training.py``).
+
+    ``train/detector.py --distributed`` as two processes of this machine (loopback coordinator, gloo
     collectives, each process loading its own 2 rows of every 4-image batch) trains 2 steps and
     checkpoints; the same command in one process with two forced host devices (``--devices 2``)
     resumes that checkpoint to step 4: every step ran on a 2-device mesh, and the process count
@@ -126,7 +133,7 @@ def test_inpainter_on_two_processes_then_one_process_ends_where_one_process_ends
     """``train/inpaint.py --distributed`` as two processes (4 crops of 32² from a folder, 2 per
     process) runs the edge and inpaint stages and the first joint step (both generators, both
     discriminators, spectral-norm vectors, Adam moments) and checkpoints; the same command in one
-    process resumes it for the second joint step.  Against the same command run uninterrupted in one
+    process with two forced host devices (``--devices 2``) resumes it for the second joint step.  Against the same command run uninterrupted in one
     process, the exported generators agree within float32 rounding: the median tensor within 1e-5
     of its largest magnitude, every value within 1e-3 of it plus 2·lr per step.  (The biases in front
     of instance norm have a true gradient of zero; what they get is rounding noise, which Adam turns
@@ -157,8 +164,9 @@ def test_inpainter_on_two_processes_then_one_process_ends_where_one_process_ends
     log = (tmp_path / "two" / "log.csv").read_text().splitlines()
     assert [r.split(",")[0] for r in log[1:]] == ["1", "2", "3"]  # one row per step: process 1 wrote none
     assert len(list((tmp_path / "two" / "samples").glob("*.png"))) == 3
-    resumed = subprocess.run(common + ["--workdir", str(tmp_path / "two"), "--export", str(tmp_path / "two.npz")],
-                             capture_output=True, text=True, timeout=900, env=env)
+    resumed = subprocess.run(common + ["--workdir", str(tmp_path / "two"), "--export", str(tmp_path / "two.npz"),
+                                       "--devices", "2"], capture_output=True, text=True, timeout=900,
+                             env=dict(env, XLA_FLAGS="--xla_force_host_platform_device_count=2"))
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert "inpainter written" in resumed.stdout
     one = subprocess.run(common + ["--workdir", str(tmp_path / "one"), "--export", str(tmp_path / "one.npz")],

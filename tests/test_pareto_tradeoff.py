@@ -290,7 +290,14 @@ def _cell_pct(a_f: float, a_n: float) -> str:
     return f"{d:+.1f} [{d:+.1f}, {d:+.1f}] (n = 1)"
 
 
+@pytest.mark.slow
 def test_experiment_end_to_end_and_resume(monkeypatch, tmp_path):
+    """Left to ``-m slow`` (52 s of the README's test command: mono and stereo SLAM and the judge on a
+    10-frame world), which checks instead: re-detection counting (``test_count_refound_on_a_hand_built_case``),
+    the front and the goal (``test_dominance_front_and_goal_against_brute_force``, ``test_goal_examples``),
+    the report (``test_report_goal_section_on_hand_made_records``), the resume keys
+    (``test_resume_key_names_the_embedded_inpainter``); the trade-off trainer's resume after a kill
+    (``tests/test_tradeoff_train.py``)."""
     from privslam_jax.detect.predict import EMBEDDED_WEIGHTS
 
     exp = _load(monkeypatch)
