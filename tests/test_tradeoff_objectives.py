@@ -235,13 +235,14 @@ def test_privacy_loss_is_a_soft_maximum_of_the_coverage_weighted_probabilities()
     img, masks, det, params = _privacy_case()
     with jax.enable_x64(True):
         x = jnp.asarray(img, jnp.float64)
-        value = float(jax.jit(lambda x: privacy_loss(params, x, masks, det, temperature=TAU))(x))
-        out = np.asarray(decode_head(nnx.merge(det.graphdef, params)(x[None]))[0])
+        loss = jax.jit(lambda x, m: privacy_loss(params, x, m, det, temperature=TAU))
+        value = float(loss(x, jnp.asarray(masks)))
+        out = np.asarray(jax.jit(lambda x: decode_head(nnx.merge(det.graphdef, params)(x[None]))[0])(x))
         cover = np.asarray(anchor_mask_coverage(jnp.asarray(out[:, :4]), masks))
         s = cover[:, :, None] * out[None, :, 4:][:, :, list(PRIVACY_CLASSES)]
         mx = s.reshape(len(masks), -1).max(axis=1)
         assert mx.mean() <= value <= mx.mean() + TAU * np.log(s[0].size), (mx.mean(), value)
-        assert float(privacy_loss(params, x, np.zeros_like(masks), det)) == 0.0
+        assert float(loss(x, jnp.zeros(masks.shape, bool))) == 0.0
 
 
 @pytest.mark.slow
