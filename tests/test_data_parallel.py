@@ -84,7 +84,7 @@ def test_detector_on_two_processes_then_two_devices_ends_where_one_device_ends(t
     """Left to ``-m slow`` (81 s of the README's test command, its longest test), which checks instead:
     two processes, collectives, each process's own rows and a changed process count with the
     inpainter (below); the rows each process loads (``test_each_process_loads_its_own_block_of_rows``);
-    ``--devices 2`` (the inpainter's resumed run below); the detector's resume after a SIGKILL
+    ``--devices 2`` (the inpainter's resumed run below); the detector's resume from a checkpoint
     (``tests/test_resume_training.py``).
 
     ``train/detector.py --distributed`` as two processes of this machine (loopback coordinator, gloo

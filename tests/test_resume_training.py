@@ -12,6 +12,9 @@ deterministic, so no tolerance is needed.
 The three processes share a persistent XLA compilation cache (in ``tmp_path``) so only the first
 one compiles the train steps; a cached executable is the one XLA compiled for the same
 program, so this changes the run time only.
+
+The detector's SIGKILL run is ``slow`` (docs/testing.md); the default command resumes the detector
+from a checkpoint in one process instead, and kills the inpainter.
 """
 
 from __future__ import annotations
@@ -149,7 +152,36 @@ def _yolo_dataset(root: Path, n: int = 8, size: int = 64) -> None:
         (root / "labels" / "train" / f"{i:03d}.txt").write_text("\n".join(lines) + "\n")
 
 
+def test_detector_resumed_in_process_ends_with_the_weights_of_an_uninterrupted_run(tmp_path):
+    """``train`` to step 2 with a checkpoint, then the same config to step 4 (it resumes from
+    checkpoint 2), against an uninterrupted 4-step run: every leaf of the final checkpoint
+    (weights, BatchNorm statistics, EMA, optimiser moments, step) bit-identical.  The in-process
+    counterpart of the SIGKILL test below (slow), as ``tests/test_inpaint_train.py`` is the inpainter's."""
+    from privslam_jax.detect.train import TrainConfig, train
+
+    _yolo_dataset(tmp_path / "ds")
+
+    def config(run: str, steps: int) -> TrainConfig:
+        return TrainConfig(data=str(tmp_path / "ds"), num_classes=2, scale="tiny", imgsz=64, batch_size=2, epochs=1,
+                           warmup_epochs=0.0, max_steps=steps, ckpt_every=2, ckpt_dir=str(tmp_path / run))
+
+    train(config("resumed", 2), progress=False)
+    assert _finalized(tmp_path / "resumed") == [2]
+    at_2 = _restore(tmp_path / "resumed" / "2")
+    train(config("resumed", 4), progress=False)
+    train(config("full", 4), progress=False)
+    assert _finalized(tmp_path / "resumed")[-1] == _finalized(tmp_path / "full")[-1] == 4
+    at_4 = _restore(tmp_path / "resumed" / "4")
+    _assert_same_leaves(_restore(tmp_path / "full" / "4"), at_4, min_leaves=500)
+    # steps 3-4 trained: the weights moved
+    assert sum(not np.array_equal(x, y) for (k, x), (_, y) in zip(at_2, at_4, strict=True) if "kernel" in k) > 50
+
+
+@pytest.mark.slow
 def test_detector_killed_between_checkpoints_resumes_to_identical_weights(tmp_path):
+    """Left to ``-m slow`` (43 s of the README's test command, the inpainter's test below 17 s), which
+    checks instead: a SIGKILL between orbax checkpoints with the inpainter (below), and the
+    detector's resume from a checkpoint in one process (above)."""
     _yolo_dataset(tmp_path / "ds")
     # 8 images, batch 2, 3 epochs: 12 steps, orbax checkpoints (asynchronous) after steps 4, 8 and 12
     def command(run: str) -> list[str]:
@@ -187,13 +219,7 @@ def _log_rows(workdir: Path) -> list[str]:
     return path.read_text().splitlines()[1:] if path.is_file() else []
 
 
-@pytest.mark.slow
 def test_inpainter_killed_between_checkpoints_resumes_to_identical_weights(tmp_path):
-    """Left to ``-m slow`` (it took 28 s of the README's test command), which checks instead: the
-    inpainter's resume bit for bit in one process
-    (``tests/test_inpaint_train.py::test_resume_after_kill_equals_uninterrupted``) and from another
-    process count (``tests/test_data_parallel.py``), and a SIGKILL between orbax checkpoints with the
-    detector above."""
     images = tmp_path / "images"
     images.mkdir()
     rng = np.random.default_rng(0)

@@ -24,19 +24,34 @@ def loop_world():
     return seq, frames
 
 
-def test_stereo_loop_closes_at_the_right_place_and_lowers_the_error(loop_world):
+def _run(loop_world, loop_closing: bool):
     seq, frames = loop_world
-    gt = seq.poses
-    runs = {lc: run_slam(frames, seq.camera, SlamConfig(mode="stereo", loop_closing=lc), timestamps=seq.timestamps)
-            for lc in (False, True)}
-    assert runs[False].loops == []
-    loops = runs[True].loops
-    assert len(loops) >= 1
-    kf = runs[True].keyframe_indices
-    for lc in loops:  # every loop joins two places the ground truth says are the same
-        assert np.linalg.norm(gt[kf[lc.query], :3, 3] - gt[kf[lc.match], :3, 3]) <= 5.0
+    result = run_slam(frames, seq.camera, SlamConfig(mode="stereo", loop_closing=loop_closing), timestamps=seq.timestamps)
+    err = ate((seq.timestamps, np.asarray(result.trajectory.as_matrices())), (seq.timestamps, seq.poses), "se3").rmse
+    return result, err
+
+
+def test_stereo_loop_closes_at_the_right_place(loop_world):
+    """Every loop joins two places the ground truth says are the same (≤ 5 m apart), with SE(3) (a
+    metric map), and the trajectory ends within 0.12 m RMS of the truth (SE(3) ATE; measured 0.067 m
+    with loop closing, 0.232 m without it: ``test_stereo_loop_closing_lowers_the_error``, slow)."""
+    seq, _ = loop_world
+    result, err = _run(loop_world, True)
+    assert len(result.loops) >= 1
+    kf = result.keyframe_indices
+    for lc in result.loops:
+        assert np.linalg.norm(seq.poses[kf[lc.query], :3, 3] - seq.poses[kf[lc.match], :3, 3]) <= 5.0
         assert lc.scale == pytest.approx(1.0, abs=1e-12)  # SE(3) with a metric map
-    err = {k: ate((seq.timestamps, np.asarray(r.trajectory.as_matrices())), (seq.timestamps, gt), "se3").rmse
-           for k, r in runs.items()}
-    assert err[True] < err[False]
-    assert any("loop closed" in e for e in runs[True].events)
+    assert any("loop closed" in e for e in result.events)
+    assert err < 0.12, err
+
+
+@pytest.mark.slow
+def test_stereo_loop_closing_lowers_the_error(loop_world):
+    """The same sequence without loop closing finds no loop and ends farther from the truth.  Left to
+    ``-m slow`` (a second 140-frame SLAM run, 30 s of the README's test command); the default command
+    checks the loop closed run against the truth above."""
+    with_lc, err_lc = _run(loop_world, True)
+    without, err = _run(loop_world, False)
+    assert without.loops == [] and len(with_lc.loops) >= 1
+    assert err_lc < err, (err_lc, err)
