@@ -33,7 +33,7 @@ def _run(loop_world, loop_closing: bool):
 
 def test_stereo_loop_closes_at_the_right_place(loop_world):
     """Every loop joins two places the ground truth says are the same (≤ 5 m apart), with SE(3) (a
-    metric map), and the trajectory ends within 0.12 m RMS of the truth (SE(3) ATE; measured 0.067 m
+    metric map), and the trajectory ends within 0.15 m RMS of the truth (SE(3) ATE; measured 0.067 m
     with loop closing, 0.232 m without it: ``test_stereo_loop_closing_lowers_the_error``, slow)."""
     seq, _ = loop_world
     result, err = _run(loop_world, True)
@@ -43,7 +43,7 @@ def test_stereo_loop_closes_at_the_right_place(loop_world):
         assert np.linalg.norm(seq.poses[kf[lc.query], :3, 3] - seq.poses[kf[lc.match], :3, 3]) <= 5.0
         assert lc.scale == pytest.approx(1.0, abs=1e-12)  # SE(3) with a metric map
     assert any("loop closed" in e for e in result.events)
-    assert err < 0.12, err
+    assert err < 0.15, err
 
 
 @pytest.mark.slow
