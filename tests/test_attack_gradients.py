@@ -49,6 +49,8 @@ from privslam_jax.privacy.lift import (
     ray_anchors,
     ray_lift,
     ray_lift_core,
+    axial_lift,
+    axial_lift_core,
     sphere_lift,
     sphere_lift_core,
 )
@@ -141,7 +143,9 @@ def _ray_core(pts, key):
     (lambda pts, key: lambda p: paired_lift_core(p, key), paired_lift),
     (_ray_core, lambda p, key: ray_lift(p, key, num_anchors=4)),
     (lambda pts, key: lambda p: sphere_lift_core(p, key), sphere_lift),
-], ids=["random", "paired", "ray", "sphere"])
+    (lambda pts, key: lambda p: axial_lift_core(p, jnp.asarray([0.3, -1.0, 0.2]), key),
+     lambda p, key: axial_lift(p, (0.3, -1.0, 0.2), key)),
+], ids=["random", "paired", "ray", "sphere", "axial"])
 def test_lift_core_gradient_and_host_equality(bind, host):
     """Gradients of a scalar of the core's lines in the points against central differences; the core
     equals the host lift for distinct points.  The ray cloud's anchors (k-means, on the host) are held

@@ -1,6 +1,7 @@
 """Lifts: uniform directions (a test that rejects biased samplers), points on their lines,
 naive decoders fail, default keys differ; ray and sphere clouds meet at their centres with balanced
-signs and a position-blind anchor choice; Plücker helpers against numpy closed forms."""
+signs and a position-blind anchor choice; axial clouds meet their axis at a right angle and carry
+nothing of a point's distance from it; Plücker helpers against numpy closed forms."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from privslam_jax.geometry.plucker import (
     point_line_distance,
 )
 from privslam_jax.privacy.lift import (
+    axial_lift,
     entropy_key,
     fixed_key,
     paired_lift,
@@ -28,7 +30,14 @@ from privslam_jax.privacy.lift import (
     sphere_lift,
 )
 
-LIFTS = [random_lift, paired_lift, ray_lift, sphere_lift]
+
+
+def axial_y(points, key=None):
+    """:func:`axial_lift` with ``up = −y`` (KITTI's camera frame)."""
+    return axial_lift(points, (0.0, -1.0, 0.0), key)
+
+
+LIFTS = [random_lift, paired_lift, ray_lift, sphere_lift, axial_y]
 
 
 def isotropy_pvalues(d: np.ndarray) -> tuple[float, float]:
@@ -334,3 +343,39 @@ def test_sphere_cloud_lines_meet_at_the_centroid_with_fair_signs():
     d, m = np.asarray(lines.directions), np.asarray(lines.moments)
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
     assert np.linalg.norm(np.cross(on_centre, d) - m, axis=1).max() < 1e-12
+
+
+def test_axial_cloud_lines_meet_the_axis_at_a_right_angle_and_carry_only_height_and_bearing():
+    """Axial clouds: line ``i`` passes through point ``i``, is perpendicular to ``up`` and meets the axis
+    through the centroid along ``up`` (numpy closed forms); its sign is a fair coin; moving every point
+    along its own line away from or towards the axis (a new distance per point) leaves the cloud's lines
+    unchanged, so no attack on the lines can learn that distance; a point on the axis keeps a line."""
+    rng = np.random.default_rng(2)
+    up = np.array([0.1, -1.0, 0.05])
+    u = up / np.linalg.norm(up)
+    pts = rng.uniform(-20, 20, (2001, 3)) + np.array([50.0, 3.0, -7.0])
+    c = pts.mean(0)
+    lines = axial_lift(pts, up, fixed_key(5))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    scale = np.abs(pts).max()
+    assert np.linalg.norm(np.cross(pts, d) - m, axis=1).max() < 1e-12 * scale
+    assert np.abs(d @ u).max() < 1e-12  # perpendicular to the axis
+    foot = c + ((pts - c) @ u)[:, None] * u  # the axis point at each point's height
+    assert np.linalg.norm(np.cross(foot, d) - m, axis=1).max() < 1e-12 * scale
+    away = np.sum(d * (pts - foot), axis=1) > 0
+    assert stats.binomtest(int(away.sum()), len(pts), 0.5).pvalue > 1e-3
+    # the same lines for points moved along their lines: pairs mirrored through the axis, each pair's
+    # distance from the axis scaled by one factor in U(0.2, 3), keep the centroid and so the axis
+    half = pts[:1000]
+    foot_h = c + ((half - c) @ u)[:, None] * u
+    mirrored = np.concatenate([half, 2 * foot_h - half])
+    f = np.tile(rng.uniform(0.2, 3.0, 1000), 2)[:, None]
+    feet = np.concatenate([foot_h, foot_h])
+    a, b = (axial_lift(x, up, fixed_key(5)) for x in (mirrored, feet + f * (mirrored - feet)))
+    np.testing.assert_allclose(np.asarray(b.directions), np.asarray(a.directions), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(b.moments), np.asarray(a.moments), atol=1e-12 * scale)
+    on_axis = np.array([[0.0, 0, 0], [1.0, 0, 0], [-1.0, 0, 0], [0.0, 2.0, 0]])  # centroid (0, 0.5, 0): points 0 and 3 on the axis
+    lines = axial_lift(on_axis, (0.0, 1.0, 0.0), fixed_key(0))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    assert np.linalg.norm(np.cross(on_axis, d) - m, axis=1).max() < 1e-12

@@ -175,3 +175,38 @@ def test_lift_keeps_descriptors_and_the_optimised_lift_runs(tmp_path, capsys):
         assert np.max(np.linalg.norm(np.cross(pts, d) - m, axis=1)) < 1e-3
     with pytest.raises(SystemExit):  # argparse refuses a non-positive --passes
         main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "x.ply"), "--passes", "0"])
+
+
+def test_axial_lift_and_path_attack_read_the_keyframes(tmp_path, capsys):
+    """``privslam lift --method axial --keyframes KEYFRAMES.txt`` equals ``axial_lift`` about the keyframes'
+    mean up axis (to the float32 PLY's rounding), and ``privslam attack --method path --trajectory`` equals
+    ``path_attack`` of the written lines; the axial lift without keyframes, keyframes without the axial
+    lift and the path attack without a trajectory are clear errors that write nothing."""
+    from privslam_jax.attacks.plane import path_attack
+    from privslam_jax.data.trajectory_io import write_tum_matrices
+    from privslam_jax.privacy.lift import axial_lift, fixed_key
+    from privslam_jax.privacy.road import keyframe_up
+    from privslam_jax.types import PointCloud
+    from test_plane_attack import _hilly_road
+
+    X, _, T = _hilly_road()
+    save_point_cloud(tmp_path / "p.ply", PointCloud(xyz=jnp.asarray(X, jnp.float32)))
+    write_tum_matrices(tmp_path / "keyframes.txt", np.arange(len(T)) * 0.1, T)
+    assert main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "a.ply"), "--method", "axial", "--seed", "2",
+                 "--keyframes", str(tmp_path / "keyframes.txt")]) == 0
+    got = load_line_cloud(tmp_path / "a.ply")
+    ref = axial_lift(X.astype(np.float32), keyframe_up(T), fixed_key(2))
+    np.testing.assert_allclose(np.asarray(got.directions), np.asarray(ref.directions), atol=5e-5)
+    np.testing.assert_allclose(np.asarray(got.moments), np.asarray(ref.moments), atol=5e-3)
+    assert main(["attack", str(tmp_path / "a.ply"), "--out", str(tmp_path / "r.ply"), "--method", "path",
+                 "--trajectory", str(tmp_path / "keyframes.txt")]) == 0
+    rec = np.asarray(load_point_cloud(tmp_path / "r.ply").xyz)
+    np.testing.assert_allclose(rec, path_attack(got, T).astype(np.float32), rtol=1e-6, atol=1e-4)
+    capsys.readouterr()
+    for args, flag in ((["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "x.ply"), "--method", "axial"], "--keyframes"),
+                       (["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "x.ply"), "--keyframes",
+                         str(tmp_path / "keyframes.txt")], "--method axial"),
+                       (["attack", str(tmp_path / "a.ply"), "--out", str(tmp_path / "x.ply"), "--method", "path"], "--trajectory")):
+        assert main(args) == 2
+        assert flag in capsys.readouterr().err
+    assert not (tmp_path / "x.ply").exists()

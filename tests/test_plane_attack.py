@@ -122,3 +122,29 @@ def test_road_surface_attack_on_one_shared_plane_is_the_ground_plane_attack_and_
                                   (T, 1.65, (0, 0, 0), "down"), (T, 1.65, (0, 1), "down")):
         with pytest.raises(ValueError, match=match):
             road_surface_attack(lines, bad_T, h, down)
+
+
+def test_path_attack_takes_each_lines_point_nearest_a_keyframe_and_refuses_bad_poses():
+    """Reference per line: the closest point of the line to each camera centre (numpy projection), the
+    nearest of them kept; a point on the path comes back exactly, an axial cloud's street points do not."""
+    from privslam_jax.attacks.plane import path_attack
+    from privslam_jax.privacy.lift import axial_lift
+
+    X, road, T = _hilly_road()
+    X = np.concatenate([X, T[:3, :3, 3]])  # three points on the path itself
+    lines = random_lift(X, fixed_key(6))
+    got = path_attack(lines, T, chunk=101)
+    d = np.asarray(lines.directions, np.float64)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    p0 = np.cross(d, np.asarray(lines.moments, np.float64))
+    C = T[:, :3, 3]
+    for i in range(len(X)):
+        cands = [p0[i] + np.dot(c - p0[i], d[i]) * d[i] for c in C]  # the line's point nearest each centre
+        k = np.argmin([np.linalg.norm(x - c) for x, c in zip(cands, C)])
+        np.testing.assert_allclose(got[i], cands[k], atol=1e-9)
+    np.testing.assert_allclose(got[-3:], X[-3:], atol=1e-4)  # float32 lines
+    axial = path_attack(axial_lift(X[:-3], (0.0, -1.0, 0.0), fixed_key(6)), T)
+    assert np.mean(np.linalg.norm(axial - X[:-3], axis=1) <= 0.5) < 0.2
+    for bad in (T[0], T[:0], np.full_like(T, np.nan)):
+        with pytest.raises(ValueError, match="T_w_c"):
+            path_attack(lines, bad)

@@ -97,3 +97,25 @@ def test_privslam_lift_road_parallel(tmp_path, capsys, monkeypatch):
     assert main(["lift", str(tmp_path / "p.ply"), "--out", str(tmp_path / "x.ply"), "--method", "optimised",
                  "--road-parallel", str(tmp_path / "bad.txt")]) == 2
     assert "bad.txt" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()
+
+
+def test_keyframe_up_is_the_mean_up_axis_and_bad_input_is_refused():
+    """The keyframes' mean up axis: cameras pitched −5°, 0° and +5° about x on a road tilted by 3° give the
+    tilted road's normal; bad poses and up axes that cancel are refused."""
+    from privslam_jax.privacy.road import keyframe_up
+
+    def rot_x(deg):
+        a = np.radians(deg)
+        return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+
+    T = np.tile(np.eye(4), (3, 1, 1))
+    for k, pitch in enumerate((-5.0, 0.0, 5.0)):
+        T[k, :3, :3] = rot_x(3.0 + pitch)
+        T[k, :3, 3] = [0.0, 0.0, 10.0 * k]
+    np.testing.assert_allclose(keyframe_up(T), -rot_x(3.0) @ np.array([0.0, 1.0, 0.0]), atol=1e-12)
+    with pytest.raises(ValueError, match="keyframe poses"):
+        keyframe_up(T[:, :3])
+    opposite = T[:2].copy()
+    opposite[1, :3, :3] = rot_x(180.0) @ opposite[0, :3, :3]  # one camera upside down
+    with pytest.raises(ValueError, match="cancel"):
+        keyframe_up(opposite)

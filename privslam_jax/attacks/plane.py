@@ -1,5 +1,5 @@
 """Scene-prior attacks on every line cloud: intersect each line with the ground plane, or with the road
-under the camera path.
+under the camera path, or take its point nearest the camera path.
 
 A street map's points are largely on the road (30 % of the synthetic street map's points lie within
 5 cm of the ground), and the ground plane is public knowledge in the map's own frame: a SLAM map is
@@ -28,6 +28,12 @@ them): the road under keyframe ``c`` is the plane through its foot ``F_c = C_c +
 world's camera frames, and ``h`` the camera height), and each line takes its intersection with the
 plane of the keyframe whose foot is nearest to that intersection — the road surface the vehicle
 drove over, one tangent plane per keyframe.  With one shared plane this is :func:`ground_plane_attack`.
+
+:func:`path_attack` uses the keyframes' camera centres alone: a street map's points were seen from the
+path, most of them a few metres from it (the road, parked cars, kerbs), so each line's point nearest
+any keyframe centre is a guess that needs no road model.  It is the prior an attacker has left against
+an axial cloud (:func:`~privslam_jax.privacy.lift.axial_lift`), whose lines say nothing about a point's
+distance from the axis.
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ import numpy as np
 
 from privslam_jax.types import LineCloud
 
-__all__ = ["ground_plane_attack", "road_planes", "road_surface_attack"]
+__all__ = ["ground_plane_attack", "path_attack", "road_planes", "road_surface_attack"]
 
 
 def ground_plane_attack(lines: LineCloud, normal: np.ndarray | tuple | list, offset: float) -> np.ndarray:
@@ -63,6 +69,23 @@ def road_surface_attack(lines: LineCloud, T_w_c: np.ndarray, height: float,
     for i in range(0, len(p0), chunk):
         x = _meet(p0[i:i + chunk], d[i:i + chunk], n, feet)  # (c, M, 3)
         best = np.argmin(np.linalg.norm(x - feet[None], axis=2), axis=1)
+        out[i:i + chunk] = x[np.arange(len(x)), best]
+    return out
+
+
+def path_attack(lines: LineCloud, T_w_c: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """``(N, 3)`` float64: each line's point nearest any of the keyframes' camera centres (``T_w_c``
+    ``(M, 4, 4)``, camera to map; module docstring).  ``chunk`` lines at a time (memory ``chunk × M``)."""
+    T = np.asarray(T_w_c, np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0 or not np.all(np.isfinite(T)):
+        raise ValueError(f"T_w_c must be finite keyframe poses (M, 4, 4) with M >= 1, got shape {T.shape}")
+    centres = T[:, :3, 3]
+    d, p0 = _lines(lines)
+    out = np.empty_like(p0)
+    for i in range(0, len(p0), chunk):
+        t = d[i:i + chunk] @ centres.T - np.einsum("ik,ik->i", p0[i:i + chunk], d[i:i + chunk])[:, None]  # (c, M)
+        x = p0[i:i + chunk, None, :] + t[..., None] * d[i:i + chunk, None, :]
+        best = np.argmin(np.linalg.norm(x - centres[None], axis=2), axis=1)
         out[i:i + chunk] = x[np.arange(len(x)), best]
     return out
 

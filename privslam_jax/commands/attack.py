@@ -10,7 +10,8 @@ KITTI's road 1.65 m below a first camera with y down) where its point would be i
 the attack on sphere clouds, and on every other lift (``privslam_jax.attacks.plane``); ``--method road``:
 each line meets the road under the keyframes of ``--trajectory`` (the map's keyframe poses, camera to
 map: ``keyframes.txt`` of ``privslam slam``, TUM, or a KITTI pose file), ``--camera-height`` above it
-along the camera's y axis: the road's slope no longer matters.  Point ``i`` of
+along the camera's y axis: the road's slope no longer matters; ``--method path``: each line's point
+nearest a camera centre of ``--trajectory`` (the prior left against axial clouds).  Point ``i`` of
 the output is recovered from line ``i``.  Runs in float32; ``--x64`` runs in float64.
 """
 
@@ -30,12 +31,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("lines", type=Path, help="input line cloud, PLY (edges or vertex pairs)")
     p.add_argument("--out", type=Path, required=True, help="output recovered point cloud, PLY")
-    p.add_argument("--method", choices=("line2point", "gradient", "ray", "tpf", "plane", "road"), default="line2point",
+    p.add_argument("--method", choices=("line2point", "gradient", "ray", "tpf", "plane", "road", "path"), default="line2point",
                    help="attack (default line2point)")
     p.add_argument("--plane", type=plane, default=((0.0, 1.0, 0.0), 1.65),
                    help="ground plane NX,NY,NZ,H (n·x = H) in the map's frame for --method plane (default 0,1,0,1.65)")
     p.add_argument("--trajectory", type=Path, default=None,
-                   help="the map's keyframe poses (camera to map), TUM (privslam slam's keyframes.txt) or KITTI, for --method road")
+                   help="the map's keyframe poses (camera to map), TUM (privslam slam's keyframes.txt) or KITTI, for --method road and path")
     p.add_argument("--camera-height", type=positive_float, default=1.65,
                    help="camera above the road in metres, along its y axis, for --method road (default 1.65: KITTI)")
     p.add_argument("--refine", type=nonnegative_int, default=2, help="Line2Point refinement rounds (default 2; authors: 2 or 3)")
@@ -52,13 +53,13 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.attacks.gradient import GradientAttackConfig, gradient_attack
     from privslam_jax.attacks.two_peaks import assign_pairs, two_peak_attack
     from privslam_jax.attacks.line2point import Line2PointConfig, line2point
-    from privslam_jax.attacks.plane import ground_plane_attack, road_surface_attack
+    from privslam_jax.attacks.plane import ground_plane_attack, path_attack, road_surface_attack
     from privslam_jax.data.trajectory_io import read_pose_matrices
     from privslam_jax.data.ply import load_line_cloud, save_point_cloud
     from privslam_jax.types import PointCloud
 
-    if args.method == "road" and args.trajectory is None:
-        raise ValueError("--method road needs --trajectory (the map's keyframe poses: privslam slam's keyframes.txt)")
+    if args.method in ("road", "path") and args.trajectory is None:
+        raise ValueError(f"--method {args.method} needs --trajectory (the map's keyframe poses: privslam slam's keyframes.txt)")
     t0 = time.perf_counter()
     with jax.enable_x64(args.x64):
         lines = load_line_cloud(args.lines)
@@ -75,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
             pts = jax.numpy.asarray(road_surface_attack(lines, keyframes, args.camera_height),
                                     "float64" if args.x64 else "float32")
             print(f"the road under {len(keyframes)} keyframes, {args.camera_height} m below each camera")
+        elif args.method == "path":
+            keyframes = read_pose_matrices(args.trajectory)
+            pts = jax.numpy.asarray(path_attack(lines, keyframes), "float64" if args.x64 else "float32")
+            print(f"each line's point nearest one of {len(keyframes)} camera centres")
         elif args.method == "tpf":
             res = two_peak_attack(lines, progress=True)
             pts = jax.numpy.asarray(assign_pairs(res, "random"), "float64" if args.x64 else "float32")

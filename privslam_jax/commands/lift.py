@@ -6,7 +6,9 @@ line's closest point to the origin) and edge ``i``; it corresponds to point ``i`
 ``--method paired``: paired-point lifting (Lee et al., CVPR 2023), one line through each random
 pair of points; ``--method ray``: ray clouds (Moon et al., CVPR 2024), each line through its point
 and a random one of ``--anchors`` k-means centres of the map; ``--method sphere``: sphere clouds
-(Moon et al., BMVC 2024), every line through the map's centroid; ``--method optimised``: directions
+(Moon et al., BMVC 2024), every line through the map's centroid; ``--method axial``: axial clouds,
+every line horizontal and meeting the vertical axis through the map's centroid, "vertical" being the
+mean up axis of the map's keyframes (``--keyframes``); ``--method optimised``: directions
 optimised against the gradient attack, kept away from the points' viewing directions when the PLY has
 normals (``nx ny nz``, as ``privslam slam``'s ``map.ply``) so they still serve localisation.
 ``--road-parallel KEYFRAMES`` (random and optimised lifts) lays the lines of the points within
@@ -67,7 +69,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("points", type=Path, help="input point cloud: PLY, or a BAL problem (its points)")
     p.add_argument("--out", type=Path, required=True, help="output line cloud, PLY")
-    p.add_argument("--method", choices=("random", "paired", "ray", "sphere", "optimised"), default="random",
+    p.add_argument("--method", choices=("random", "paired", "ray", "sphere", "axial", "optimised"), default="random",
                    help="lift (default random)")
     p.add_argument("--anchors", type=positive_int, default=8, help="anchors of --method ray (default 8)")
     p.add_argument("--passes", type=positive_float, default=100.0,
@@ -75,6 +77,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--road-parallel", type=Path, default=None, metavar="KEYFRAMES",
                    help="lay the lines of points near the road parallel to it (random and optimised lifts): the "
                         "map's keyframe poses, TUM (privslam slam's keyframes.txt) or KITTI (privslam_jax.privacy.road)")
+    p.add_argument("--keyframes", type=Path, default=None, metavar="KEYFRAMES",
+                   help="--method axial: the map's keyframe poses, TUM (privslam slam's keyframes.txt) or KITTI; the "
+                        "axis is along their mean up axis (camera -y)")
     p.add_argument("--camera-height", type=positive_float, default=1.65,
                    help="camera above the road in metres for --road-parallel (default 1.65: KITTI)")
     p.add_argument("--road-within", type=positive_float, default=1.0,
@@ -87,6 +92,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from privslam_jax.data.ply import save_line_cloud
     from privslam_jax.privacy.lift import (
+        axial_lift,
         entropy_key,
         fixed_key,
         paired_lift,
@@ -99,7 +105,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.road_parallel is not None and args.method not in ("random", "optimised"):
         raise ValueError(f"--road-parallel needs lines of free direction (--method random or optimised), not {args.method}")
+    if (args.method == "axial") != (args.keyframes is not None):
+        raise ValueError("--method axial needs --keyframes (the map's keyframe poses: privslam slam's keyframes.txt), "
+                         "and --keyframes is only for --method axial")
     cloud = load_points(args.points)
+    up = None
+    if args.keyframes is not None:  # read (and checked) before the lift
+        from privslam_jax.data.trajectory_io import read_pose_matrices
+        from privslam_jax.privacy.road import keyframe_up
+
+        up = keyframe_up(read_pose_matrices(args.keyframes))
     keyframes = None
     if args.road_parallel is not None:  # read (and checked) before the lift, which may take minutes
         from privslam_jax.attacks.plane import road_planes
@@ -114,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
         key = fixed_key(args.seed)
     lifts = {"random": random_lift, "paired": paired_lift, "sphere": sphere_lift,
              "ray": lambda p, k: ray_lift(p, k, num_anchors=args.anchors),
+             "axial": lambda p, k: axial_lift(p, up, k),
              "optimised": lambda p, k: optimised_lift(p, k, viewing_directions=cloud.normals,
                                                       config=OptimisedLiftConfig(passes=args.passes), progress=True)}
     lines = lifts[args.method](cloud.xyz, key)

@@ -12,6 +12,10 @@ that does not localise is listed as such, never given a made-up pose.  ``--depth
 depth from the sequence's ``depth/`` maps (as ``privslam slam --mode rgbd`` reads them; e.g. a
 time-of-flight sensor) and solves with it: sphere clouds, whose lines all meet at one point so that the
 camera's distance is not observable from keypoints alone, need it and are refused without it.
+``--heading-prior POSES`` (camera → world, one pose per frame of the sequence, KITTI or TUM: e.g. a GNSS
+or odometry trajectory, good to ±90° in heading) discards candidate poses more than 90° from frame i's
+pose: axial clouds (``privslam lift --method axial``) need it, since the half-turn about their axis maps
+them onto themselves and every pose has a twin turned 180° that explains the keypoints as well.
 """
 
 from __future__ import annotations
@@ -39,6 +43,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=nonnegative_int, default=0, help="RANSAC seed (default 0)")
     p.add_argument("--depth", action="store_true",
                    help="use the sequence's depth/ maps as the keypoints' depth (needed for sphere clouds)")
+    p.add_argument("--heading-prior", type=Path, default=None, metavar="POSES",
+                   help="rough camera-to-world poses, one per frame (KITTI or TUM): candidates more than 90 degrees "
+                        "from frame i's are discarded (what axial clouds need)")
     p.add_argument("--overwrite", action="store_true",
                    help="clear --out first if it holds an earlier privslam run (otherwise such a folder is refused)")
     p.set_defaults(func=run, owns_out=True)
@@ -50,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from privslam_jax.data.files import write_atomic
     from privslam_jax.data.kitti import KittiSequence
     from privslam_jax.data.ply import load_line_cloud_and_descriptors
-    from privslam_jax.data.trajectory_io import write_tum_matrices
+    from privslam_jax.data.trajectory_io import read_pose_matrices, write_tum_matrices
     from privslam_jax.privacy.localize import localize_image
 
     lines, desc = load_line_cloud_and_descriptors(args.lines)
@@ -64,12 +71,19 @@ def run(args: argparse.Namespace) -> int:
     frames = list(range(0, n, args.every))
     if not frames:
         raise ValueError(f"{args.sequence}: no frames to localise")
+    priors = None
+    if args.heading_prior is not None:
+        priors = read_pose_matrices(args.heading_prior)
+        if len(priors) < n:
+            raise ValueError(f"{args.heading_prior}: {len(priors)} poses for {n} frames; --heading-prior needs one pose per "
+                             "frame of the sequence")
     K = np.asarray(seq.camera.K, np.float64)
     rows, poses, stamps, times = [], [], [], []
     for i in frames:
         t0 = time.perf_counter()
         loc, uv, _ = localize_image(seq.image(i), lines, desc, K, depth=seq[i].depth if args.depth else None,
-                                    threshold=args.threshold, min_inliers=args.min_inliers, seed=args.seed)
+                                    threshold=args.threshold, min_inliers=args.min_inliers, seed=args.seed,
+                                    rotation_prior=None if priors is None else priors[i, :3, :3].T)
         times.append(time.perf_counter() - t0)
         ts = float(seq.timestamps[i])
         rows.append(f"{ts!r} {i} {len(uv)} {int(loc.inliers.sum())} {int(loc.success)}\n")

@@ -1,6 +1,8 @@
 """privslam_jax.privacy."""
 
 from privslam_jax.privacy.lift import (
+    axial_lift,
+    axial_lift_core,
     entropy_key,
     fixed_key,
     paired_lift,
@@ -15,4 +17,4 @@ from privslam_jax.privacy.lift import (
     sphere_lift,
     sphere_lift_core,
 )
-from privslam_jax.privacy.road import road_parallel
+from privslam_jax.privacy.road import keyframe_up, road_parallel

@@ -22,8 +22,20 @@
   cloud is a set of directions seen from one point (a panorama without depth).  The centroid is
   public.  What it leaks is the bearing of every point from the centroid; its weakness is depth
   recovery from neighbouring bearings (the attacks of issue 19 item 2).
+* :func:`axial_lift` — axial clouds (this project; not from a paper): every line meets one vertical
+  axis through the map's centroid at a right angle, i.e. line ``i`` is the horizontal line from the
+  axis through ``p_i``.  It publishes each point's height and its bearing around the axis, and nothing
+  about its distance from the axis: the cloud is a function of ``(h_i, θ_i)`` alone, so no attack on the
+  lines themselves can do better than a prior on that distance.  As in a sphere cloud, every line meets
+  every line of its height on the axis, so Line2Point and the gradient attack put the points there;
+  unlike a sphere cloud it can be localised against from keypoints alone (the lines meet the axis at
+  different heights: an axial, not a central, generalized camera, so the camera's distance is
+  observable).  "Vertical" is the map's ``up``, e.g. the mean up axis of its keyframes
+  (:func:`~privslam_jax.privacy.road.keyframe_up`), normal to the mean road under them, so that the
+  lines of road points lie along the road and the ground-plane and road-surface attacks have nothing to
+  cut them with.
 
-For ray and sphere clouds the direction is ``±(p − c)/‖p − c‖`` with a random sign (the sign must
+For ray, sphere and axial clouds the direction is ``±(p − c)/‖p − c‖`` with a random sign (the sign must
 not say on which side of its centre a point lies) and the moment is ``c × d``, computed from the
 centre ``c``, so all lines of one centre meet there exactly; a point closer than ``1e-9`` m to its
 centre gets a random-direction line through it.
@@ -72,6 +84,8 @@ from privslam_jax.geometry.plucker import lines_from_points_directions, safe_nor
 from privslam_jax.types import LineCloud
 
 __all__ = [
+    "axial_lift",
+    "axial_lift_core",
     "entropy_key",
     "fixed_key",
     "random_directions",
@@ -383,3 +397,43 @@ def sphere_lift_core(points: Float[Array, "N 3"], key: jax.Array) -> LineCloud:
     centroid too); equal to :func:`sphere_lift` for a cloud without repeated points, to rounding."""
     centre = jnp.broadcast_to(jnp.mean(points, axis=0, keepdims=True), points.shape)
     return _core_through_centres(points, centre, key)
+
+
+def _unit_up(up: np.ndarray | jax.Array | tuple | list) -> np.ndarray:
+    u = np.asarray(up, np.float64)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+        raise ValueError(f"up must be a finite non-zero (3,) vector, got {u}")
+    return u / np.linalg.norm(u)
+
+
+def _axis_feet(points, centre, up):
+    """Each point's foot on the axis through ``centre`` ``(1, 3)`` along unit ``up``: ``c + ((p − c)·u) u``."""
+    return centre + ((points - centre) @ up)[:, None] * up[None, :]
+
+
+def axial_lift(points: ArrayLike, up: np.ndarray | jax.Array | tuple | list, key: jax.Array | None = None) -> LineCloud:
+    """Axial-cloud lifting (module docstring): line ``i`` passes through point ``i`` and meets the axis
+    through the centroid of the distinct points along ``up`` at a right angle (random sign); a point on
+    the axis (within 1e-9 m) gets a random-direction line through it.
+
+    Args:
+      points: ``(N, 3)`` points.
+      up: ``(3,)`` the map's up axis (need not be unit length), e.g.
+        :func:`~privslam_jax.privacy.road.keyframe_up` of its keyframes.
+      key: a ``jax.random`` key (the signs); ``None`` (default) draws one from OS entropy.
+    """
+    p, dtype = _as_points(points)
+    u = _unit_up(up)
+    key = entropy_key() if key is None else key
+    first, inverse = unique_points(p)
+    q = p[first]
+    lines = _lines_through_centres(q, _axis_feet(q, q.mean(axis=0, keepdims=True), u), key, np.dtype(np.float64))
+    d, m = np.asarray(lines.directions), np.asarray(lines.moments)
+    return _lines(d[inverse], m[inverse], dtype)
+
+
+def axial_lift_core(points: Float[Array, "N 3"], up: Float[Array, "3"], key: jax.Array) -> LineCloud:
+    """:func:`axial_lift` as a pure JAX function: jit-able, differentiable in ``points`` (through the
+    centroid too) and ``up``; equal to :func:`axial_lift` for a cloud without repeated points, to rounding."""
+    u = up.astype(points.dtype) / jnp.linalg.norm(up)
+    return _core_through_centres(points, _axis_feet(points, jnp.mean(points, axis=0, keepdims=True), u), key)

@@ -35,6 +35,12 @@ and 6 correspondences determine the pose.
    privacy-preserving visual localization using 3D sphere clouds", BMVC 2024: absolute depth from an
    on-device time-of-flight sensor).
 
+An axial cloud (:func:`~privslam_jax.privacy.lift.axial_lift`) can, but only up to a two-fold symmetry:
+the half-turn about its axis maps every one of its lines onto itself, so a pose and its half-turned twin
+(180° apart in heading, mirrored across the axis) explain every correspondence equally well.  A heading
+prior good to ±90° tells them apart (``rotation_prior=``: a compass, or the rotation of the map keyframe
+that image retrieval returns); without it the solver picks one of the two by the noise.
+
 A sphere cloud cannot be localised against from keypoints alone: all its lines meet at the centroid, so
 the map is a central camera and the query's distance from the centroid is not observable;
 :func:`localize_against_lines` refuses it unless ``depth`` is given.
@@ -181,6 +187,13 @@ def _lo_ransac(n: int, size: int, solve, errors, refine, threshold: float, max_i
     return best_T, best_in, it
 
 
+def _agreeing(solve, R_prior: np.ndarray, max_angle: float):
+    """``solve`` keeping only the candidate ``T_c_w`` whose rotation is within ``max_angle`` degrees of
+    ``R_prior``: ``(tr(R R_priorᵀ) − 1) / 2 ≥ cos(max_angle)``."""
+    cos_max = np.cos(np.radians(max_angle))
+    return lambda s: [T for T in solve(s) if (np.trace(T[:3, :3] @ R_prior.T) - 1) / 2 >= cos_max]
+
+
 def _padded(n: int) -> int:
     """Rows of a padded refinement problem: one compiled program per power-of-two bucket (≥ 64), not per
     correspondence count."""
@@ -191,12 +204,15 @@ def localize_against_lines(
     uv: Float[np.ndarray, "M 2"], lines: LineCloud, K: Float[np.ndarray, "3 3"], *,
     depth: np.ndarray | None = None, threshold: float = 2.0, max_iterations: int = 2000,
     confidence: float = 0.9999, min_inliers: int = 12, seed: int = 0,
+    rotation_prior: np.ndarray | None = None, max_prior_angle: float = 90.0,
 ) -> Localization:
     """Pose of the camera that saw keypoints ``uv`` (pixels) of map lines ``lines`` (line ``j`` matched to
     keypoint ``j``), intrinsics ``K`` (module docstring).  ``depth``: ``(M,)`` the keypoints' metric z
     (module docstring, 5.; needed for sphere clouds).  ``threshold``: inlier distance in pixels; with
     depth, a depth error ``σ_z`` moves a point by up to ``f σ_z / z`` pixels (1 % noise: ``0.01 f``), so
-    noisy depth needs a larger threshold."""
+    noisy depth needs a larger threshold.  ``rotation_prior``: a rough ``R_c_w`` ``(3, 3)`` (a compass, the
+    retrieved keyframe's); candidate poses more than ``max_prior_angle`` degrees from it are discarded —
+    needed for axial clouds, which the half-turn about their axis maps onto themselves (module docstring)."""
     import poselib
 
     uv = np.asarray(uv, np.float64)
@@ -215,6 +231,13 @@ def localize_against_lines(
         if depth.shape != (len(uv),) or not np.all(np.isfinite(depth)) or np.any(depth <= 0):
             raise ValueError(f"depth must be ({len(uv)},), finite and > 0 (drop keypoints without depth), got "
                              f"{depth.shape} with {int(np.sum(~(np.isfinite(depth) & (depth > 0))))} bad values")
+    if rotation_prior is not None:
+        rotation_prior = np.asarray(rotation_prior, np.float64)
+        if rotation_prior.shape != (3, 3) or not np.all(np.isfinite(rotation_prior)) or not np.allclose(
+                rotation_prior @ rotation_prior.T, np.eye(3), atol=1e-6):
+            raise ValueError(f"rotation_prior must be a finite (3, 3) rotation matrix, got shape {rotation_prior.shape}")
+        if not 0.0 < max_prior_angle <= 180.0:
+            raise ValueError(f"max_prior_angle must be in (0, 180] degrees, got {max_prior_angle}")
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     lines64 = LineCloud(directions=d, moments=m)
     a = np.cross(d, m)
@@ -274,6 +297,8 @@ def localize_against_lines(
                 Tr, _ = _refine_with_depth(_to_se3(T[:3, :3], T[:3, 3]), *args, jnp.asarray(w), jnp.asarray(threshold))
                 return np.linalg.inv(np.asarray(Tr.as_matrix()))
 
+        if rotation_prior is not None:
+            solve = _agreeing(solve, rotation_prior, max_prior_angle)
         best_T, best_in, it = _lo_ransac(len(uv), size, solve, errors, refine, threshold, max_iterations, confidence, rng)
         if best_T is None or best_in.sum() < min_inliers:
             return Localization(T_c_w=np.eye(4), inliers=np.zeros(len(uv), bool), iterations=it, success=False)

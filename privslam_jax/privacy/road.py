@@ -1,4 +1,5 @@
-"""Lines of road points laid parallel to the road: a defence against the road-surface attack.
+"""Lines of road points laid parallel to the road: a defence against the road-surface attack; the map's
+up axis from its keyframes (:func:`keyframe_up`, the axis of an axial cloud).
 
 Every lift keeps each point on its line, so the line of a point on the road meets the road exactly at
 the point, and :func:`privslam_jax.attacks.plane.road_surface_attack` gives it away whatever the
@@ -26,7 +27,7 @@ from privslam_jax.attacks.plane import road_planes
 from privslam_jax.privacy.lift import _as_points, _lines
 from privslam_jax.types import LineCloud
 
-__all__ = ["road_parallel"]
+__all__ = ["keyframe_up", "road_parallel"]
 
 
 def road_parallel(lines: LineCloud, points: ArrayLike, T_w_c: np.ndarray, height: float, within: float = 1.0,
@@ -55,3 +56,16 @@ def road_parallel(lines: LineCloud, points: ArrayLike, T_w_c: np.ndarray, height
     d = np.where(near[:, None], flat, d)
     m = np.where(near[:, None], np.cross(p, flat), np.asarray(lines.moments, np.float64))
     return _lines(d, m, np.dtype(np.asarray(lines.directions).dtype))
+
+
+def keyframe_up(T_w_c: np.ndarray, down: np.ndarray | tuple | list = (0.0, 1.0, 0.0)) -> np.ndarray:
+    """The map's up axis, e.g. for :func:`~privslam_jax.privacy.lift.axial_lift`: ``(3,)`` unit, the mean of
+    the keyframes' up axes ``−R_w_c · down`` (``T_w_c (M, 4, 4)`` camera to map; ``down``, the camera's down
+    axis, is ``+y`` in KITTI's and the synthetic world's camera frames).  A road vehicle's cameras pitch and
+    roll with the road, so this is the normal of the mean road under the keyframes
+    (:func:`~privslam_jax.attacks.plane.road_planes`), not gravity."""
+    n, _ = road_planes(T_w_c, 1.0, down)  # the height only places the feet, unused here
+    up = -n.mean(axis=0)
+    if np.linalg.norm(up) < 1e-6:
+        raise ValueError("the keyframes' up axes cancel out: no common up direction")
+    return up / np.linalg.norm(up)
