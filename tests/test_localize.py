@@ -232,6 +232,18 @@ def _orb_map(camera, frames):
     return np.concatenate(pts), np.concatenate(desc)
 
 
+def _every_frame_localised(out, seq, frames):
+    """``privslam localize``'s output in ``out`` says every frame localised, each within 0.15 m of its pose."""
+    from privslam_jax.data.trajectory_io import read_tum_matrices
+
+    rows = np.loadtxt(out / "queries.txt", ndmin=2)
+    assert rows[:, 4].tolist() == [1] * len(seq)
+    ts, T_w_c = read_tum_matrices(out / "poses.txt")
+    for t, T in zip(ts, T_w_c):
+        i = int(round(t * seq.config.fps))
+        assert np.linalg.norm(T[:3, 3] - frames[i].T_w_c[:3, 3]) <= 0.15, i
+
+
 def test_frames_localise_against_a_lifted_map_by_descriptor_api_and_cli(tmp_path, capsys):
     """Query frames of the synthetic street that are not in the map localise against its lifted ORB map by
     their descriptors (library and ``privslam localize``): rotation ≤ 0.5° and camera centre ≤ 1 % of the
@@ -290,12 +302,7 @@ def test_frames_localise_against_a_lifted_map_by_descriptor_api_and_cli(tmp_path
     assert loc.success and _errors(loc.T_c_w, T_true)[0] <= 0.5
     assert np.linalg.norm(centre - frames[3].T_w_c[:3, 3]) <= 0.01 * depth
     assert main(["localize", str(tmp_path / "sphere.ply"), str(seq_dir), "--out", str(tmp_path / "loc5"), "--depth"]) == 0
-    rows = np.loadtxt(tmp_path / "loc5" / "queries.txt", ndmin=2)
-    assert rows[:, 4].tolist() == [1] * len(seq)
-    ts, T_w_c = read_tum_matrices(tmp_path / "loc5" / "poses.txt")
-    for t, T in zip(ts, T_w_c):
-        i = int(round(t * seq.config.fps))
-        assert np.linalg.norm(T[:3, 3] - frames[i].T_w_c[:3, 3]) <= 0.15, i
+    _every_frame_localised(tmp_path / "loc5", seq, frames)
     # an axial cloud localises with a heading prior: the true poses turned 45° about the vertical
     axial = axial_lift_y(X, fixed_key(0))
     save_line_cloud(tmp_path / "axial.ply", axial, descriptors=desc)
@@ -305,12 +312,7 @@ def test_frames_localise_against_a_lifted_map_by_descriptor_api_and_cli(tmp_path
     np.savetxt(tmp_path / "rough.txt", rough[:, :3, :].reshape(len(rough), 12))
     assert main(["localize", str(tmp_path / "axial.ply"), str(seq_dir), "--out", str(tmp_path / "loc6"),
                  "--heading-prior", str(tmp_path / "rough.txt")]) == 0
-    rows = np.loadtxt(tmp_path / "loc6" / "queries.txt", ndmin=2)
-    assert rows[:, 4].tolist() == [1] * len(seq)
-    ts, T_w_c = read_tum_matrices(tmp_path / "loc6" / "poses.txt")
-    for t, T in zip(ts, T_w_c):
-        i = int(round(t * seq.config.fps))
-        assert np.linalg.norm(T[:3, 3] - frames[i].T_w_c[:3, 3]) <= 0.15, i
+    _every_frame_localised(tmp_path / "loc6", seq, frames)
     np.savetxt(tmp_path / "short.txt", rough[:3, :3, :].reshape(3, 12))
     assert main(["localize", str(tmp_path / "axial.ply"), str(seq_dir), "--out", str(tmp_path / "loc7"),
                  "--heading-prior", str(tmp_path / "short.txt")]) == 2
