@@ -82,7 +82,8 @@ def test_localisation_recovers_the_pose_like_pnp_on_the_points(lift):
 def test_an_axial_cloud_has_a_half_turn_twin_that_a_heading_prior_tells_apart():
     """The half-turn about an axial cloud's axis maps every line onto itself: the true pose and its twin
     ``T G`` (``G(x) = c + R_π (x − c)``) have the same line reprojection errors for every keypoint; a heading
-    prior 60° off either one localises to that one within the bounds above; bad priors are refused."""
+    prior 60° off either one localises to that one within the bounds above; without a prior the cloud is
+    refused (the twin would be a coin toss), and bad priors are refused."""
     X, T_true, uv, out = _scene()
     lines = axial_lift_y(X, fixed_key(1))
     c = X.mean(0)
@@ -99,6 +100,12 @@ def test_an_axial_cloud_has_a_half_turn_twin_that_a_heading_prior_tells_apart():
         assert loc.success
         rot, trans = _errors(loc.T_c_w, target)
         assert rot <= 0.5 and trans <= 0.005 * depth, (rot, trans)
+    for z in (None, X @ T_true[2, :3] + T_true[2, 3]):  # without a prior: refused, with or without depth
+        with pytest.raises(ValueError, match="axial cloud"):
+            localize_against_lines(uv, lines, K, depth=z)
+    tilted = axial_lift(X, (0.2, -1.0, 0.1), fixed_key(1))  # any axis, not only the frame's y
+    with pytest.raises(ValueError, match="axial cloud"):
+        localize_against_lines(uv, tilted, K)
     for bad, angle in ((np.eye(3)[:2], 90.0), (2 * np.eye(3), 90.0), (np.eye(3), 0.0), (np.eye(3), 200.0)):
         with pytest.raises(ValueError, match="rotation_prior|max_prior_angle"):
             localize_against_lines(uv, lines, K, rotation_prior=bad, max_prior_angle=angle)
@@ -310,6 +317,9 @@ def test_frames_localise_against_a_lifted_map_by_descriptor_api_and_cli(tmp_path
     turn[:3, :3] = Rotation.from_rotvec([0.0, np.radians(45.0), 0.0]).as_matrix()
     rough = np.stack([f.T_w_c @ turn for f in frames])
     np.savetxt(tmp_path / "rough.txt", rough[:, :3, :].reshape(len(rough), 12))
+    capsys.readouterr()
+    assert main(["localize", str(tmp_path / "axial.ply"), str(seq_dir), "--out", str(tmp_path / "loc8")]) == 2
+    assert "heading prior" in capsys.readouterr().err
     assert main(["localize", str(tmp_path / "axial.ply"), str(seq_dir), "--out", str(tmp_path / "loc6"),
                  "--heading-prior", str(tmp_path / "rough.txt")]) == 0
     _every_frame_localised(tmp_path / "loc6", seq, frames)

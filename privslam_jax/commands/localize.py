@@ -14,8 +14,9 @@ time-of-flight sensor) and solves with it: sphere clouds, whose lines all meet a
 camera's distance is not observable from keypoints alone, need it and are refused without it.
 ``--heading-prior POSES`` (camera → world, one pose per frame of the sequence, KITTI or TUM: e.g. a GNSS
 or odometry trajectory, good to ±90° in heading) discards candidate poses more than 90° from frame i's
-pose: axial clouds (``privslam lift --method axial``) need it, since the half-turn about their axis maps
-them onto themselves and every pose has a twin turned 180° that explains the keypoints as well.
+pose: axial clouds (``privslam lift --method axial``) need it and are refused without it, since the
+half-turn about their axis maps them onto themselves and every pose has a twin turned 180° that explains
+the keypoints as well.
 """
 
 from __future__ import annotations

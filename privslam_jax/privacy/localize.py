@@ -42,7 +42,9 @@ An axial cloud (:func:`~privslam_jax.privacy.lift.axial_lift`) can, but only up 
 the half-turn about its axis maps every one of its lines onto itself, so a pose and its half-turned twin
 (180° apart in heading, mirrored across the axis) explain every correspondence equally well.  A heading
 prior good to ±90° tells them apart (``rotation_prior=``: a compass, or the rotation of the map keyframe
-that image retrieval returns); without it the solver picks one of the two by the noise.
+that image retrieval returns); :func:`localize_against_lines` refuses an axial cloud without one (more
+than half of the lines perpendicular to one line and meeting it), as it refuses a sphere cloud without
+depth.
 
 A sphere cloud cannot be localised against from keypoints alone: all its lines meet at the centroid, so
 the map is a central camera and the query's distance from the centroid is not observable;
@@ -197,6 +199,23 @@ def _agreeing(solve, R_prior: np.ndarray, max_angle: float):
     return lambda s: [T for T in solve(s) if (np.trace(T[:3, :3] @ R_prior.T) - 1) / 2 >= cos_max]
 
 
+def _axial_share(d: np.ndarray, a: np.ndarray) -> float:
+    """Share of the lines (unit directions ``d``, closest points ``a``) perpendicular to one common line and
+    meeting it — an axial cloud's axis — in O(M): ``u``, the direction most nearly perpendicular to every
+    line, is the axis's; in the plane normal to ``u`` the perpendicular lines are 2D lines, and the axis is
+    the least-squares point nearest them all."""
+    u = np.linalg.eigh(d.T @ d)[1][:, 0]
+    tol = 1e-6 * (1.0 + float(np.abs(a).max()))
+    perp = np.abs(d @ u) <= 1e-6
+    if perp.sum() < 2:
+        return 0.0
+    ap = a[perp] - np.outer(a[perp] @ u, u)
+    P = (np.eye(3) - np.outer(u, u))[None] - d[perp, :, None] * d[perp, None, :]
+    # the sum is singular along u: pin the axis point's u-component to 0
+    axis = np.linalg.lstsq(P.sum(0) + len(P) * np.outer(u, u), np.einsum("nij,nj->i", P, ap), rcond=None)[0]
+    return float(np.sum(np.linalg.norm(np.cross(axis - ap, d[perp]), axis=1) <= tol) / len(d))
+
+
 def _padded(n: int) -> int:
     """Rows of a padded refinement problem: one compiled program per power-of-two bucket (≥ 64), not per
     correspondence count."""
@@ -253,6 +272,11 @@ def localize_against_lines(
             raise ValueError(f"{np.mean(through):.0%} of the lines meet at one point (a sphere cloud): seen from one "
                              "point, the map fixes the camera's rotation and the direction of its position, not its "
                              "distance; localising against it needs the keypoints' depth (depth=, from a depth sensor)")
+    if rotation_prior is None and _axial_share(d, a) > 0.5:
+        raise ValueError(f"{_axial_share(d, a):.0%} of the lines are perpendicular to one line and meet it (an axial "
+                         "cloud): the half-turn about that axis maps the cloud onto itself, so every pose has a twin "
+                         "turned 180 degrees that fits as well; localising against it needs a heading prior "
+                         "(rotation_prior=, good to 90 degrees)")
     # every point of a line within the map lies ahead of its ray (module docstring, 1.)
     far = 1e3 * (1.0 + float(np.abs(a).max()))
     origins = a - far * d
