@@ -38,9 +38,10 @@ and 6 correspondences determine the pose.
    privacy-preserving visual localization using 3D sphere clouds", BMVC 2024: absolute depth from an
    on-device time-of-flight sensor).
 
-An axial cloud (:func:`~privslam_jax.privacy.lift.axial_lift`) can, but only up to a two-fold symmetry:
-the half-turn about its axis maps every one of its lines onto itself, so a pose and its half-turned twin
-(180° apart in heading, mirrored across the axis) explain every correspondence equally well.  A heading
+An axial cloud (:func:`~privslam_jax.privacy.lift.axial_lift`) can be localised against from keypoints
+alone, but only up to a two-fold symmetry: the half-turn about its axis maps every one of its lines onto
+itself, so a pose and its half-turned twin (180° apart in heading, mirrored across the axis) explain every
+correspondence equally well.  A heading
 prior good to ±90° tells them apart (``rotation_prior=``: a compass, or the rotation of the map keyframe
 that image retrieval returns); :func:`localize_against_lines` refuses an axial cloud without one (more
 than half of the lines perpendicular to one line and meeting it), as it refuses a sphere cloud without
