@@ -83,7 +83,8 @@ def test_an_axial_cloud_has_a_half_turn_twin_that_a_heading_prior_tells_apart():
     """The half-turn about an axial cloud's axis maps every line onto itself: the true pose and its twin
     ``T G`` (``G(x) = c + R_π (x − c)``) have the same line reprojection errors for every keypoint; a heading
     prior 60° off either one localises to that one within the bounds above; without a prior the cloud is
-    refused (the twin would be a coin toss), and bad priors are refused."""
+    refused (the twin would be a coin toss), and bad priors (not 3×3, not orthonormal, a reflection, an angle
+    outside (0, 180]) are refused."""
     X, T_true, uv, out = _scene()
     lines = axial_lift_y(X, fixed_key(1))
     c = X.mean(0)
@@ -106,7 +107,7 @@ def test_an_axial_cloud_has_a_half_turn_twin_that_a_heading_prior_tells_apart():
     tilted = axial_lift(X, (0.2, -1.0, 0.1), fixed_key(1))  # any axis, not only the frame's y
     with pytest.raises(ValueError, match="axial cloud"):
         localize_against_lines(uv, tilted, K)
-    for bad, angle in ((np.eye(3)[:2], 90.0), (2 * np.eye(3), 90.0), (np.eye(3), 0.0), (np.eye(3), 200.0)):
+    for bad, angle in ((np.eye(3)[:2], 90.0), (2 * np.eye(3), 90.0), (-np.eye(3), 90.0), (np.eye(3), 0.0), (np.eye(3), 200.0)):
         with pytest.raises(ValueError, match="rotation_prior|max_prior_angle"):
             localize_against_lines(uv, lines, K, rotation_prior=bad, max_prior_angle=angle)
 

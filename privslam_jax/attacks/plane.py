@@ -76,10 +76,7 @@ def road_surface_attack(lines: LineCloud, T_w_c: np.ndarray, height: float,
 def path_attack(lines: LineCloud, T_w_c: np.ndarray, chunk: int = 4096) -> np.ndarray:
     """``(N, 3)`` float64: each line's point nearest any of the keyframes' camera centres (``T_w_c``
     ``(M, 4, 4)``, camera to map; module docstring).  ``chunk`` lines at a time (memory ``chunk × M``)."""
-    T = np.asarray(T_w_c, np.float64)
-    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0 or not np.all(np.isfinite(T)):
-        raise ValueError(f"T_w_c must be finite keyframe poses (M, 4, 4) with M >= 1, got shape {T.shape}")
-    centres = T[:, :3, 3]
+    centres = _keyframes(T_w_c)[:, :3, 3]
     d, p0 = _lines(lines)
     out = np.empty_like(p0)
     for i in range(0, len(p0), chunk):
@@ -94,10 +91,8 @@ def road_planes(T_w_c: np.ndarray, height: float, down: np.ndarray | tuple | lis
                 ) -> tuple[np.ndarray, np.ndarray]:
     """The road under each keyframe (module docstring): ``(normals, feet)``, both ``(M, 3)`` float64, the
     plane of keyframe ``c`` being ``n_c · x = n_c · F_c`` with unit ``n_c`` pointing down."""
-    T = np.asarray(T_w_c, np.float64)
+    T = _keyframes(T_w_c)
     dn = np.asarray(down, np.float64)
-    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0 or not np.all(np.isfinite(T)):
-        raise ValueError(f"T_w_c must be finite keyframe poses (M, 4, 4) with M >= 1, got shape {T.shape}")
     if dn.shape != (3,) or not np.all(np.isfinite(dn)) or np.linalg.norm(dn) == 0:
         raise ValueError(f"down must be a finite non-zero (3,) vector in the camera frame, got {dn}")
     if not (np.isfinite(height) and height > 0):
@@ -105,6 +100,14 @@ def road_planes(T_w_c: np.ndarray, height: float, down: np.ndarray | tuple | lis
     n = T[:, :3, :3] @ (dn / np.linalg.norm(dn))  # (M, 3) each keyframe's down axis in the map
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     return n, T[:, :3, 3] + float(height) * n
+
+
+def _keyframes(T_w_c: np.ndarray) -> np.ndarray:
+    """``T_w_c`` as float64 ``(M, 4, 4)``, ``M ≥ 1``, finite; a ``ValueError`` otherwise."""
+    T = np.asarray(T_w_c, np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0 or not np.all(np.isfinite(T)):
+        raise ValueError(f"T_w_c must be finite keyframe poses (M, 4, 4) with M >= 1, got shape {T.shape}")
+    return T
 
 
 def _lines(lines: LineCloud) -> tuple[np.ndarray, np.ndarray]:

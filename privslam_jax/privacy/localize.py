@@ -41,11 +41,10 @@ and 6 correspondences determine the pose.
 An axial cloud (:func:`~privslam_jax.privacy.lift.axial_lift`) can be localised against from keypoints
 alone, but only up to a two-fold symmetry: the half-turn about its axis maps every one of its lines onto
 itself, so a pose and its half-turned twin (180° apart in heading, mirrored across the axis) explain every
-correspondence equally well.  A heading
-prior good to ±90° tells them apart (``rotation_prior=``: a compass, or the rotation of the map keyframe
-that image retrieval returns); :func:`localize_against_lines` refuses an axial cloud without one (more
-than half of the lines perpendicular to one line and meeting it), as it refuses a sphere cloud without
-depth.
+correspondence equally well.  A heading prior good to ±90° tells them apart (``rotation_prior=``: a
+compass, or the rotation of the map keyframe that image retrieval returns); :func:`localize_against_lines`
+refuses an axial cloud without one (more than half of the lines perpendicular to one line and meeting
+it), as it refuses a sphere cloud without depth.
 
 A sphere cloud cannot be localised against from keypoints alone: all its lines meet at the centroid, so
 the map is a central camera and the query's distance from the centroid is not observable;
@@ -193,6 +192,13 @@ def _lo_ransac(n: int, size: int, solve, errors, refine, threshold: float, max_i
     return best_T, best_in, it
 
 
+def _is_rotation(R: np.ndarray) -> bool:
+    """Whether ``R`` is a finite ``(3, 3)`` rotation matrix: ``R Rᵀ = I`` (to 1e-6) and ``det R = +1``."""
+    R = np.asarray(R, np.float64)
+    return bool(R.shape == (3, 3) and np.all(np.isfinite(R)) and np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+                and np.linalg.det(R) > 0)
+
+
 def _agreeing(solve, R_prior: np.ndarray, max_angle: float):
     """``solve`` keeping only the candidate ``T_c_w`` whose rotation is within ``max_angle`` degrees of
     ``R_prior``: ``(tr(R R_priorᵀ) − 1) / 2 ≥ cos(max_angle)``."""
@@ -256,9 +262,9 @@ def localize_against_lines(
                              f"{depth.shape} with {int(np.sum(~(np.isfinite(depth) & (depth > 0))))} bad values")
     if rotation_prior is not None:
         rotation_prior = np.asarray(rotation_prior, np.float64)
-        if rotation_prior.shape != (3, 3) or not np.all(np.isfinite(rotation_prior)) or not np.allclose(
-                rotation_prior @ rotation_prior.T, np.eye(3), atol=1e-6):
-            raise ValueError(f"rotation_prior must be a finite (3, 3) rotation matrix, got shape {rotation_prior.shape}")
+        if not _is_rotation(rotation_prior):
+            raise ValueError(f"rotation_prior must be a finite (3, 3) rotation matrix (orthonormal, det +1), got "
+                             f"shape {rotation_prior.shape}")
         if not 0.0 < max_prior_angle <= 180.0:
             raise ValueError(f"max_prior_angle must be in (0, 180] degrees, got {max_prior_angle}")
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -273,8 +279,9 @@ def localize_against_lines(
             raise ValueError(f"{np.mean(through):.0%} of the lines meet at one point (a sphere cloud): seen from one "
                              "point, the map fixes the camera's rotation and the direction of its position, not its "
                              "distance; localising against it needs the keypoints' depth (depth=, from a depth sensor)")
-    if rotation_prior is None and _axial_share(d, a) > 0.5:
-        raise ValueError(f"{_axial_share(d, a):.0%} of the lines are perpendicular to one line and meet it (an axial "
+    axial = 0.0 if rotation_prior is not None else _axial_share(d, a)
+    if axial > 0.5:
+        raise ValueError(f"{axial:.0%} of the lines are perpendicular to one line and meet it (an axial "
                          "cloud): the half-turn about that axis maps the cloud onto itself, so every pose has a twin "
                          "turned 180 degrees that fits as well; localising against it needs a heading prior "
                          "(rotation_prior=, good to 90 degrees)")
