@@ -24,9 +24,8 @@ Command::
 
 Default models: the embedded real-domain checkpoint (with its inference settings: the mean of the
 fill and the mirrored crop's mirrored fill, blended with Telea at full resolution, the network's share
-1 − exp(−d / 3) at distance d from the visible pixels in model pixels), the same weights with the
-share 0.85 · (1 − exp(−d / 5 px)) in frame pixels of the previous settings (2026-12-07), the same
-weights without any of them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 9 min on
+0.95 · (1 − exp(−d / 3)) at distance d from the visible pixels in model pixels), the same weights without
+them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 9 min on
 2 cores. Needs ``../shared`` (exits with a message without it).
 """
 
@@ -112,8 +111,6 @@ def main(argv: list[str] | None = None) -> int:
     if not a.model:  # what the checkpoint's inference settings (flip average, Telea blend) add
         real_model = models["edgeconnect (real-domain)"]
         models = {"edgeconnect (real-domain)": real_model,
-                  "edgeconnect (real-domain, blend by frame distance)": Inpainter(*real_model.modules, dataclasses.replace(
-                      real_model.config, prefill_blend=0.85, prefill_blend_distance=5.0, prefill_blend_unit="frame")),
                   "edgeconnect (real-domain, plain inference)": Inpainter(*real_model.modules, dataclasses.replace(
                       real_model.config, flip_average=False, prefill_blend=1.0, prefill_blend_distance=0.0,
                       prefill_blend_unit="frame")),
@@ -132,11 +129,9 @@ def main(argv: list[str] | None = None) -> int:
           "Models: " + ", ".join(f"{n} = `{Path(q).name}`" for n, q in
                                  (s.partition('=')[::2] for s in specs)) + "."
           + ("" if a.model else " The real-domain checkpoint runs with its inference settings (flip average, "
-                                 "Telea blend with the network's share 1 − exp(−d / 3) at distance d from the visible "
-                                 "pixels in model pixels, i.e. frame pixels / the crop's resize factor); 'blend by frame "
-                                 "distance' is the same weights with the share 0.85 · (1 − exp(−d / 5 px)) in frame "
-                                 "pixels (the previous settings, 2026-12-07); 'plain inference' is the same weights "
-                                 "without any of them."), ""]
+                                 "Telea blend with the network's share 0.95 · (1 − exp(−d / 3)) at distance d from the "
+                                 "visible pixels in model pixels, i.e. frame pixels / the crop's resize factor); 'plain "
+                                 "inference' is the same weights without them."), ""]
     t0 = time.perf_counter()
     for set_name, (paths, repeats, seed) in sets.items():
         res = run_set(lambda paths=paths, repeats=repeats, seed=seed: real_hole_cases(

@@ -48,7 +48,7 @@ FILTER_METHODS: tuple[str, ...] = INPAINTER_METHODS + baselines.METHODS
 EMBEDDED_INPAINTER = Path(__file__).resolve().parents[1] / "assets" / "inpainter_cpu16.npz"
 """The shipped CPU-preset checkpoint trained on the synthetic world (``docs/model_card_inpainter.md``)."""
 EMBEDDED_REAL_INPAINTER = EMBEDDED_INPAINTER.with_name("inpainter_cpu16_real.npz")
-"""The same network fine-tuned on real street frames (``docs/model_card_inpainter_real.md``)."""
+"""The same network fine-tuned on real street frames, run at 96² crops (``docs/model_card_inpainter_real.md``)."""
 EMBEDDED_TRADEOFF_INPAINTER = EMBEDDED_INPAINTER.with_name("inpainter_tradeoff.npz")
 """The synthetic-world checkpoint fine-tuned for privacy and SLAM accuracy at once, the chosen point of the
 Pareto front (``train/tradeoff.py``, ``docs/model_card_inpainter_tradeoff.md``); ``method="tradeoff"``."""
