@@ -24,8 +24,8 @@ Command::
 
 Default models: the embedded real-domain checkpoint (with its inference settings: the mean of the
 fill and the mirrored crop's mirrored fill, blended with Telea at full resolution, the network's share
-0.95 · (1 − exp(−d / 3)) at distance d from the visible pixels in model pixels), the same weights without
-them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 9 min on
+1 − exp(−d / 3) at distance d from the visible pixels in model pixels), the same weights without
+them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 5 min on
 2 cores. Needs ``../shared`` (exits with a message without it).
 """
 
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
           "Models: " + ", ".join(f"{n} = `{Path(q).name}`" for n, q in
                                  (s.partition('=')[::2] for s in specs)) + "."
           + ("" if a.model else " The real-domain checkpoint runs with its inference settings (flip average, "
-                                 "Telea blend with the network's share 0.95 · (1 − exp(−d / 3)) at distance d from the "
+                                 "Telea blend with the network's share 1 − exp(−d / 3) at distance d from the "
                                  "visible pixels in model pixels, i.e. frame pixels / the crop's resize factor); 'plain "
                                  "inference' is the same weights without them."), ""]
     t0 = time.perf_counter()
