@@ -17,7 +17,10 @@ pixel's crop; :func:`~privslam_jax.inpaint.filter.blend_distance`):
 
 Command::
 
-    python experiments/inpaint_blend_scan.py [--model PATH]
+    python experiments/inpaint_blend_scan.py [--model PATH] [--size N]
+
+``--size`` runs the network at another model resolution than the checkpoint's (a multiple of 4;
+the model card's question whether weights trained at 64² gain from larger crops without training).
 
 Runtime ≈ 20 s on 2 cores. Needs ``../shared``.
 """
@@ -39,6 +42,7 @@ from privslam_jax._xla import configure_xla  # noqa: E402
 configure_xla()
 
 from privslam_jax._shared import shared_dir  # noqa: E402
+from privslam_jax.argtypes import positive_int  # noqa: E402
 from privslam_jax.inpaint import baselines  # noqa: E402
 from privslam_jax.inpaint.data import image_paths, object_shapes  # noqa: E402
 from privslam_jax.inpaint.evaluate import real_hole_cases  # noqa: E402
@@ -57,12 +61,16 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:  # numpy: metrics.image.psnr w
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--model", type=Path, default=EMBEDDED_REAL_INPAINTER, help="inpainter checkpoint (default: the real-frame one)")
+    p.add_argument("--size", type=positive_int, help="model resolution to run at (default: the checkpoint's)")
     a = p.parse_args(argv)
+    if a.size is not None and a.size % 4:
+        p.error(f"--size: must be a multiple of 4, got {a.size}")
     try:  # checked before any work and before ../shared is needed
         model = Inpainter.load(a.model)
     except (OSError, ValueError) as err:
         p.error(f"--model {a.model}: {err}")
-    cfg = dataclasses.replace(model.config, prefill_blend=1.0, prefill_blend_distance=0.0, prefill_blend_unit="frame")
+    cfg = dataclasses.replace(model.config, prefill_blend=1.0, prefill_blend_distance=0.0, prefill_blend_unit="frame",
+                              size=a.size or model.config.size)
     if cfg.prefill == "white":
         p.error(f"--model {a.model}: its prefill is white; there is no prefill to blend with")
     shared = shared_dir()
