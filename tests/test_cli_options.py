@@ -307,12 +307,17 @@ TRAIN_CASES = [
     ("vocabulary", ["--out", MISSING, "--words", "1"], "--words"),
     ("vocabulary", ["--out", MISSING, "--synth-seeds", "5-2"], "--synth-seeds"),
     ("vocabulary", ["--out", MISSING, "--stride", "0"], "--stride"),
+    ("synthetic_shapes", ["--out", MISSING, "--seeds", "5-2"], "--seeds"),
+    ("synthetic_shapes", ["--out", MISSING, "--frames", "10,x"], "--frames"),
+    ("synthetic_shapes", ["--out", MISSING, "--frames", "100"], "--frames"),
+    ("synthetic_shapes", ["--out", MISSING, "--min-area", "0"], "--min-area"),
 ]
 
 
 @pytest.fixture(scope="module")
 def train_scripts() -> dict[str, ModuleType]:
-    return {name: _load(name) for name in ("detector", "inpaint", "pseudo_labels", "real_labels", "tradeoff", "vocabulary")}
+    return {name: _load(name) for name in ("detector", "inpaint", "pseudo_labels", "real_labels", "synthetic_shapes", "tradeoff",
+                                            "vocabulary")}
 
 
 @pytest.mark.parametrize(("script", "argv", "option"), TRAIN_CASES,
