@@ -24,7 +24,8 @@ Command::
 
 Default models: the embedded real-domain checkpoint (with its inference settings: the mean of the
 fill and the mirrored crop's mirrored fill, blended with Telea at full resolution, the network's share
-1 − exp(−d / 3) at distance d from the visible pixels in model pixels), the same weights without
+a · (1 − exp(−d / τ)) at distance d from the visible pixels, a and τ read from the checkpoint's config
+and printed in the results header), the same weights without
 them ("plain inference"), and the synthetic-only checkpoint. Runtime ≈ 5 min on
 2 cores. Needs ``../shared`` (exits with a message without it).
 """
@@ -54,6 +55,19 @@ from privslam_jax.inpaint.filter import EMBEDDED_INPAINTER, EMBEDDED_REAL_INPAIN
 from privslam_jax.report import markdown_table  # noqa: E402
 
 BASELINES = ("telea", "ns")
+
+
+def inference_settings(cfg) -> str:
+    """The checkpoint's inference settings in words, from its :class:`~privslam_jax.inpaint.filter.InpainterConfig`."""
+    parts = ["flip average"] if cfg.flip_average else []
+    if cfg.prefill_blend_distance > 0.0:
+        unit = "model pixels, i.e. frame pixels / the crop's resize factor" if cfg.prefill_blend_unit == "model" \
+            else "frame pixels"
+        parts.append(f"Telea blend with the network's share {cfg.prefill_blend:g} · (1 − exp(−d / "
+                     f"{cfg.prefill_blend_distance:g})) at distance d from the visible pixels in {unit}")
+    elif cfg.prefill_blend < 1.0:
+        parts.append(f"Telea blend with the network's share {cfg.prefill_blend:g}")
+    return ", ".join(parts) or "none"
 
 
 def summarize(res: dict[str, dict[str, np.ndarray]]) -> list[list[str]]:
@@ -128,10 +142,9 @@ def main(argv: list[str] | None = None) -> int:
           f"silhouettes, {a.objects} per frame, {a.repeats} placements per frame, dilation 4 px. "
           "Models: " + ", ".join(f"{n} = `{Path(q).name}`" for n, q in
                                  (s.partition('=')[::2] for s in specs)) + "."
-          + ("" if a.model else " The real-domain checkpoint runs with its inference settings (flip average, "
-                                 "Telea blend with the network's share 1 − exp(−d / 3) at distance d from the "
-                                 "visible pixels in model pixels, i.e. frame pixels / the crop's resize factor); 'plain "
-                                 "inference' is the same weights without them."), ""]
+          + ("" if a.model else " The real-domain checkpoint runs with its inference settings (" + inference_settings(
+              models["edgeconnect (real-domain)"].config) + "); 'plain inference' is the same weights without them."),
+          ""]
     t0 = time.perf_counter()
     for set_name, (paths, repeats, seed) in sets.items():
         res = run_set(lambda paths=paths, repeats=repeats, seed=seed: real_hole_cases(
