@@ -81,6 +81,13 @@ LOSS = ("tests/test_yolov8_loss.py",)
 IMAGE = ("tests/test_image_metrics.py", "tests/test_image_inputs.py")
 TRAJ = ("tests/test_trajectory_metrics.py",)
 PRIV = ("tests/test_privacy_metrics.py",)
+LOC = ("tests/test_localize.py",)
+PLANE = ("tests/test_plane_attack.py", "tests/test_road_parallel.py")
+TPF = ("tests/test_two_peaks.py",)
+CENTRED = ("tests/test_centred_attack.py",)
+ROAD = ("tests/test_road_parallel.py", "tests/test_lines_cli.py")
+INPAINT_INFERENCE = ("tests/test_inpaint_inference.py",)
+REDETECTION = ("tests/test_pareto_tradeoff.py::test_count_refound_on_a_hand_built_case",)
 
 _AL = "privslam_jax/geometry/align.py"
 _PR = "privslam_jax/geometry/projection.py"
@@ -98,6 +105,11 @@ _LO = "privslam_jax/detect/loss.py"
 _IM = "privslam_jax/metrics/image.py"
 _TR = "privslam_jax/metrics/trajectory.py"
 _PM = "privslam_jax/metrics/privacy.py"
+_LC = "privslam_jax/privacy/localize.py"
+_PA = "privslam_jax/attacks/plane.py"
+_TP = "privslam_jax/attacks/two_peaks.py"
+_CE = "privslam_jax/attacks/centred.py"
+_RD = "privslam_jax/privacy/road.py"
 
 MUTANTS: tuple[Mutant, ...] = (
     # ---- alignment (Umeyama) -----------------------------------------------------------------
@@ -515,6 +527,101 @@ MUTANTS: tuple[Mutant, ...] = (
            "tmin = np.where(d != 0, np.minimum(t1, t2), -np.inf).min(1)",
            "uniform baseline chord entry parameter min over axes instead of max (leaves the box)",
            PRIV),
+    # ---- localisation against line clouds ------------------------------------------------------
+    Mutant("loc-pixel-line-Kinv-transposed", _LC,
+           "return mc @ jnp.linalg.inv(K)  # l_px = K^-T m_c, as rows",
+           "return mc @ jnp.linalg.inv(K).T  # l_px = K^-T m_c, as rows",
+           "refinement's image line K⁻¹ m_c instead of l = K⁻ᵀ m_c (rows m_c K⁻ᵀ): principal point in the wrong place",
+           LOC),
+    Mutant("loc-point-line-t-unrotated", _LC,
+           "Xw = (X - t) @ R  # Rᵀ (X − t), row-wise",
+           "Xw = X @ R - t  # Rᵀ (X − t), row-wise",
+           "point_line_errors maps the query points to the world as Rᵀ X − t instead of Rᵀ (X − t)",
+           LOC),
+    Mutant("loc-ray-origins-ahead", _LC,
+           "origins = a - far * d",
+           "origins = a + far * d",
+           "far-back ray origins a + L d: every map point lies behind its ray (PoseLib's cheirality)",
+           LOC),
+    Mutant("loc-depth-as-range", _LC,
+           "X = rays * depth[:, None]  # the keypoints in the query camera (z = depth)",
+           "X = rays / np.linalg.norm(rays, axis=1, keepdims=True) * depth[:, None]",
+           "depth taken as the range along the ray instead of z: X = depth · K⁻¹u / ‖K⁻¹u‖",
+           LOC),
+    Mutant("loc-depth-scale-without-z", _LC,
+           "np.concatenate([f / depth, np.zeros(pad)])",
+           "np.concatenate([np.full(len(depth), f), np.zeros(pad)])",
+           "depth refinement scales the offsets by f instead of f / z: far points weigh z² more than in pixels",
+           LOC),
+    Mutant("loc-prior-trace-untransposed", _LC,
+           "if (np.trace(T[:3, :3] @ R_prior.T) - 1) / 2 >= cos_max]",
+           "if (np.trace(T[:3, :3] @ R_prior) - 1) / 2 >= cos_max]",
+           "rotation prior angle from tr(R R_prior) instead of tr(R R_priorᵀ)",
+           LOC),
+    Mutant("loc-axial-largest-eigenvector", _LC,
+           "u = np.linalg.eigh(d.T @ d)[1][:, 0]",
+           "u = np.linalg.eigh(d.T @ d)[1][:, -1]",
+           "axial check takes the direction most aligned with the lines (largest eigenvalue) as the axis",
+           LOC),
+    Mutant("loc-keypoint-depths-clip-hw", _LC,
+           "0, [w - 1, h - 1])",
+           "0, [h - 1, w - 1])",
+           "keypoint_depths clips (u, v) to (h − 1, w − 1): columns past the image height read the wrong pixel",
+           LOC),
+    Mutant("loc-match-order-by-row", _LC,
+           'return pairs[np.argsort(pairs[:, 0], kind="stable")]',
+           'return pairs[np.argsort(pairs[:, 1], kind="stable")]',
+           "match_to_map ordered by map row instead of keypoint",
+           LOC),
+    # ---- ground-plane / road-surface attacks ---------------------------------------------------
+    Mutant("plane-offset-not-normalised", _PA,
+           "h = float(offset) / np.linalg.norm(n)",
+           "h = float(offset)",
+           "n·x = h with n normalised but h not: the plane moves when ‖n‖ ≠ 1",
+           PLANE),
+    Mutant("road-planes-rotation-transposed", _PA,
+           "n = T[:, :3, :3] @ (dn / np.linalg.norm(dn))",
+           "n = np.swapaxes(T[:, :3, :3], 1, 2) @ (dn / np.linalg.norm(dn))",
+           "road normal R_c_w · down instead of R_w_c · down (pitch sign flipped)",
+           PLANE),
+    # ---- two-peak finding ----------------------------------------------------------------------
+    Mutant("tpf-pair-copy-neighbour", _TP,
+           "dist[cn[..., 0] < 1e-12] = np.inf",
+           "dist[np.arange(len(rows)), rows] = np.inf",
+           "only the line itself excluded: its pair's bit-identical copy (no closest approach) votes offset 0",
+           TPF),
+    Mutant("tpf-kde-sigma-in-metres", _TP,
+           'density = gaussian_filter1d(counts, h / width, mode="constant")',
+           'density = gaussian_filter1d(counts, h, mode="constant")',
+           "KDE smoothing σ = h bins instead of h / bin width (bandwidth in metres used as bins)",
+           TPF),
+    Mutant("tpf-oracle-copy-paste", _TP,
+           "swap = err(result.second[i], i) + err(result.first[j], j) < keep",
+           "swap = err(result.second[i], i) + err(result.second[j], j) < keep",
+           "oracle's swapped cost uses second[j] (copy-paste) instead of first[j]",
+           TPF),
+    # ---- ray-cloud attack ----------------------------------------------------------------------
+    Mutant("centred-vote-counts-offsets", _CE,
+           "score += (hits > 0) + 1e-6 * hits",
+           "score += hits",
+           "a candidate scores the number of offsets within δ, not the number of centres agreeing",
+           CENTRED),
+    Mutant("centred-distance-unnormalised", _CE,
+           "dist = np.where(ok, np.abs(np.sum((a - a[i]) * c, axis=1)) / s, np.inf)",
+           "dist = np.where(ok, np.abs(np.sum((a - a[i]) * c, axis=1)), np.inf)",
+           "line–line distance not divided by ‖d_i × d_j‖: voters chosen by the triple product",
+           CENTRED),
+    # ---- road-parallel defence / keyframe up axis ----------------------------------------------
+    Mutant("road-up-sign", _RD,
+           "up = -n.mean(axis=0)",
+           "up = n.mean(axis=0)",
+           "keyframe_up returns the mean down axis (R_w_c · down) instead of up",
+           ROAD),
+    Mutant("road-near-one-sided", _RD,
+           'near = np.abs(np.einsum("ik,ik->i", p - feet[nearest], nk)) < within',
+           'near = np.einsum("ik,ik->i", p - feet[nearest], nk) < within',
+           "near-road test without abs(): every point above the road (negative along down) is laid flat",
+           ROAD),
     # recall-first propagation on real frames (issue 13 item 3)
     Mutant("runs-keep-non-increasing", "privslam_jax/detect/temporal.py",
            "cuts = [0] + [i + 1 for i, d in enumerate(steps) if d != step] + [len(ids)]",
@@ -532,6 +639,55 @@ MUTANTS: tuple[Mutant, ...] = (
            "propagate = 0",
            "real frames filtered per frame by default (the recall-first default lost)",
            ("tests/test_detector_domain.py",)),
+    # ---- real-frame inpainter inference (flip average, blend with the prefill by distance) ------------
+    Mutant("flip-fill-not-unmirrored", "privslam_jax/inpaint/filter.py",
+           "        return m(out)\n",
+           "        return out\n",
+           "flip average: the mirrored crop's fill is not mirrored back before averaging (the two fills disagree "
+           "left to right)",
+           INPAINT_INFERENCE),
+    Mutant("share-complement-dropped", "privslam_jax/inpaint/filter.py",
+           "return (a * -np.expm1(-blend_distance(masks, config) / tau)).astype(np.float32)",
+           "return (a * np.exp(-blend_distance(masks, config) / tau)).astype(np.float32)",
+           "network share a·exp(−d/τ) instead of a·(1 − exp(−d/τ)): the network fills the hole's rim and Telea "
+           "its centre",
+           INPAINT_INFERENCE),
+    Mutant("model-pixels-inverse-factor", "privslam_jax/inpaint/filter.py",
+           "total[m] += max(box.height, box.width) / config.size",
+           "total[m] += config.size / max(box.height, box.width)",
+           "distance in model pixels multiplied by the crop's resize factor instead of divided by it",
+           INPAINT_INFERENCE),
+    Mutant("model-pixels-short-side", "privslam_jax/inpaint/filter.py",
+           "total[m] += max(box.height, box.width) / config.size",
+           "total[m] += min(box.height, box.width) / config.size",
+           "resize factor from the crop's shorter side (the crop is resized by its longer side)",
+           INPAINT_INFERENCE),
+    Mutant("hole-distance-inverted", "privslam_jax/inpaint/filter.py",
+           "return ndimage.distance_transform_edt(hidden).astype(np.float32)",
+           "return ndimage.distance_transform_edt(~hidden).astype(np.float32)",
+           "distance to the nearest hidden pixel instead of the nearest visible one (0 inside every hole)",
+           INPAINT_INFERENCE),
+    Mutant("prefill-blend-swapped", "privslam_jax/inpaint/differentiable.py",
+           "blend = a * blend + (1.0 - a) * jax.lax.stop_gradient(cast(constants.frame_fill))",
+           "blend = (1.0 - a) * blend + a * jax.lax.stop_gradient(cast(constants.frame_fill))",
+           "the network's share a given to the prefill and 1 − a to the network",
+           INPAINT_INFERENCE),
+    Mutant("paste-overlaps-summed", "privslam_jax/inpaint/differentiable.py",
+           "blend = acc / jnp.maximum(count, 1.0)[..., None]",
+           "blend = acc",
+           "pixels covered by two crops take the sum of their fills instead of the mean",
+           INPAINT_INFERENCE),
+    # ---- re-detection count (Table 2, the Pareto front's privacy axis) ------------------------------
+    Mutant("refound-counts-detections", "privslam_jax/metrics/redetection.py",
+           "return int(np.any((box_iou(bo, bf) >= iou) & same, axis=1).sum())",
+           "return int(np.any((box_iou(bo, bf) >= iou) & same, axis=0).sum())",
+           "re-detection counts the filtered detections that match some object, not the objects matched",
+           REDETECTION),
+    Mutant("refound-class-ignored", "privslam_jax/metrics/redetection.py",
+           "same = co[:, None] == cf[None, :]",
+           "same = np.ones((len(co), len(cf)), bool)",
+           "a filtered detection of another class counts as re-detecting the object",
+           REDETECTION),
 )
 
 

@@ -90,3 +90,28 @@ def test_ray_cloud_attack_on_a_street_beats_line2point_and_refuses_other_clouds(
             ray_cloud_attack(other)
     with pytest.raises(ValueError, match="fraction"):
         ray_cloud_attack(lines, fraction=0.0)
+
+
+def test_closest_approaches_equal_least_squares_on_the_two_lines():
+    """``_closest_approaches``' line–line distances and offsets along line ``i`` against the closed form:
+    the least-squares ``(s, t)`` of ``a_i + s d_i = a_j + t d_j`` (``numpy.linalg.lstsq``), the distance the
+    residual's norm, the offset ``s``; 20 random lines (unit directions, points anywhere on them), each
+    taken as line ``i``; a line parallel to line 0 (and one anti-parallel) has distance ``inf``."""
+    from privslam_jax.attacks.centred import _closest_approaches
+
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(22, 3))
+    d[20], d[21] = d[0], -2.0 * d[0]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    a = rng.uniform(-10, 10, (22, 3))
+    for i in range(20):
+        dist, t = _closest_approaches(a, d, i)
+        assert dist[i] == np.inf
+        for j in range(20):
+            if j == i:
+                continue
+            s, u = np.linalg.lstsq(np.stack([d[i], -d[j]], axis=1), a[j] - a[i], rcond=None)[0]
+            gap = np.linalg.norm(a[i] + s * d[i] - a[j] - u * d[j])
+            np.testing.assert_allclose([dist[j], t[j]], [gap, s], rtol=1e-7, atol=1e-5, err_msg=f"{i}, {j}")
+    dist, _ = _closest_approaches(a, d, 0)
+    assert np.isinf(dist[[0, 20, 21]]).all() and np.isfinite(dist[1:20]).all()

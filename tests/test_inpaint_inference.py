@@ -144,6 +144,16 @@ def test_distance_in_model_pixels_divides_by_each_crops_resize_factor():
         dataclasses.replace(cfg, prefill_blend_unit="metres")
 
 
+def test_distance_in_model_pixels_of_a_non_square_crop_uses_its_longer_side():
+    """A mask longer than the frame is tall (20×120 px in 96×160) gets a crop that cannot stay square:
+    2 × 120 = 240 px wanted, 96 rows available, so 96 rows × 120 columns (the mask's own width), resized to
+    64² — by hand, its resize factor is the longer side, 120 / 64, not the shorter 96 / 64."""
+    masks = np.zeros((1, 96, 160), bool)
+    masks[0, 40:60, 20:140] = True
+    cfg = dataclasses.replace(TINY, prefill_blend_distance=3.0, prefill_blend_unit="model")
+    np.testing.assert_allclose(blend_distance(masks, cfg), hole_distance(masks[0]) / (120 / 64), rtol=1e-6)
+
+
 def test_distance_share_edge_cases_and_constants_it_needs():
     """A frame hidden everywhere has no visible pixel: every distance is infinite and the share is
     ``a``; a hole of one pixel is 1 px from the visible ones. Constants made for a constant blend

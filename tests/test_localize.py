@@ -403,3 +403,73 @@ def test_the_pose_is_a_stationary_point_of_the_robust_cost_on_its_own_inliers(li
              / (2 * h) for e in np.eye(6)]
         worst = max(worst, float(np.max(np.abs(g))) / c0)
     assert worst < 1e-4, worst
+
+
+@pytest.mark.parametrize("lift", [random_lift, sphere_lift])
+def test_the_depth_pose_is_a_stationary_point_of_the_robust_pixel_cost_on_its_own_inliers(lift):
+    """The depth path's refine-and-re-classify fixed point: the returned pose minimises the Huber cost
+    (δ = the threshold) of :func:`point_line_errors` (pixels at each point's depth, ``f · ‖·‖ / z``) over
+    the returned inliers.  Reference: central differences of that cost in numpy over the six pose
+    increments ``exp(ξ) T``; the gradient relative to the cost must vanish (1.5 px keypoint noise, 0.5 %
+    depth noise, 40 % outliers, two seeds): measured 1e-8 (random) and 2e-7 (sphere), against 11-13 when
+    the offsets are scaled by ``f`` instead of ``f / z`` (far points over-weighted)."""
+    f, delta = 500.0, 8.0
+
+    def cost(T, Xq, lines, inl):
+        r = point_line_errors(T, Xq, lines, f)[inl]
+        return float(np.sum(np.where(r <= delta, 0.5 * r * r, delta * r - 0.5 * delta * delta)))
+
+    def exp(xi):
+        E = np.eye(4)
+        E[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
+        E[:3, 3] = xi[3:]
+        return E
+
+    worst = 0.0
+    for seed in range(2):
+        X, T_true, uv, out = _scene(noise=1.5, outliers=0.4, seed=seed)
+        z = (X @ T_true[2, :3] + T_true[2, 3]) * (1 + 0.005 * np.random.default_rng(seed + 10).standard_normal(len(X)))
+        lines = lift(X, fixed_key(seed))
+        loc = localize_against_lines(uv, lines, K, depth=z, threshold=delta)
+        assert loc.success
+        Xq = np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ np.linalg.inv(K).T * z[:, None]  # rays · z
+        c0 = cost(loc.T_c_w, Xq, lines, loc.inliers)
+        h = 1e-6
+        g = [(cost(exp(h * e) @ loc.T_c_w, Xq, lines, loc.inliers) - cost(exp(-h * e) @ loc.T_c_w, Xq, lines, loc.inliers))
+             / (2 * h) for e in np.eye(6)]
+        worst = max(worst, float(np.max(np.abs(g))) / c0)
+    assert worst < 1e-4, worst
+
+
+def test_the_rotation_prior_keeps_exactly_the_candidates_within_the_angle():
+    """``_agreeing`` (the rotation-prior filter around the minimal solver) keeps, in order, exactly the
+    candidate poses whose rotation is within ``max_angle`` of the prior.  Reference: scipy's geodesic
+    angle ``|R R_priorᵀ|`` for 200 candidates 0-120° from a prior far from the identity (a 93° turn);
+    candidates within 0.5° of the bound are left out so rounding cannot decide."""
+    from privslam_jax.privacy.localize import _agreeing
+
+    rng = np.random.default_rng(0)
+    prior = Rotation.from_rotvec([0.2, 1.6, -0.1]).as_matrix()
+    axes = rng.normal(size=(400, 3))
+    angles = np.radians(rng.uniform(0.0, 120.0, 400))
+    cands = []
+    for ax, ang in zip(axes, angles):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(ang * ax / np.linalg.norm(ax)).as_matrix() @ prior
+        T[:3, 3] = rng.normal(size=3)
+        angle = np.degrees(Rotation.from_matrix(T[:3, :3] @ prior.T).magnitude())
+        if abs(angle - 60.0) > 0.5:
+            cands.append((T, angle))
+    cands = cands[:200]
+    sample = np.arange(6)
+    seen = []
+
+    def solve(s):
+        seen.append(s)
+        return [T for T, _ in cands]
+
+    kept = _agreeing(solve, prior, 60.0)(sample)
+    expected = [T for T, angle in cands if angle <= 60.0]
+    assert seen and seen[0] is sample
+    assert 50 < len(expected) < 150 and len(kept) == len(expected)
+    assert all(k is e for k, e in zip(kept, expected))
