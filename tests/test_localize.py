@@ -372,6 +372,23 @@ def test_kitti_seq1_frames_localise_against_the_lifted_map_of_the_other_frames(s
                 assert rot <= max_rot and np.linalg.norm(centre - T_w_c[i][:3, 3]) <= max_share * depth, (i, which, rot)
 
 
+def _relative_gradient(cost, T: np.ndarray, h: float = 1e-6) -> float:
+    """Largest central difference of ``cost`` over the six pose increments ``exp(ξ) T`` (numpy, scipy's
+    rotation vector), relative to the cost at ``T``."""
+    def exp(xi):
+        E = np.eye(4)
+        E[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
+        E[:3, 3] = xi[3:]
+        return E
+
+    g = [(cost(exp(h * e) @ T) - cost(exp(-h * e) @ T)) / (2 * h) for e in np.eye(6)]
+    return float(np.max(np.abs(g))) / cost(T)
+
+
+def _huber(r: np.ndarray, delta: float) -> float:
+    return float(np.sum(np.where(r <= delta, 0.5 * r * r, delta * r - 0.5 * delta * delta)))
+
+
 @pytest.mark.parametrize("lift", [random_lift, axial_lift_y])
 def test_the_pose_is_a_stationary_point_of_the_robust_cost_on_its_own_inliers(lift):
     """LO-RANSAC's last step refines and re-classifies to a fixed point: the returned pose minimises the
@@ -379,29 +396,14 @@ def test_the_pose_is_a_stationary_point_of_the_robust_cost_on_its_own_inliers(li
     differences of that cost in numpy over the six pose increments ``exp(ξ) T``; the gradient, relative to
     the cost's scale, must vanish (each keypoint with 1.5 px noise and 40 % outliers, several seeds): measured
     2e-6 (random) and 8e-6 (axial), against 57-59 when the last refinement was not iterated."""
-    from scipy.spatial.transform import Rotation as Rot
-
-    def cost(T, uv, lines, inl):
-        r = line_reprojection_errors(T, uv, lines, K)[inl]
-        return float(np.sum(np.where(r <= 2.0, 0.5 * r * r, 2.0 * r - 2.0)))
-
-    def exp(xi):
-        E = np.eye(4)
-        E[:3, :3] = Rot.from_rotvec(xi[:3]).as_matrix()
-        E[:3, 3] = xi[3:]
-        return E
-
     worst = 0.0
     for seed in range(4):
         X, T_true, uv, out = _scene(noise=1.5, outliers=0.4, seed=seed)
         lines = lift(X, fixed_key(seed))
         loc = localize_against_lines(uv, lines, K, rotation_prior=T_true[:3, :3])
         assert loc.success
-        c0 = cost(loc.T_c_w, uv, lines, loc.inliers)
-        h = 1e-6
-        g = [(cost(exp(h * e) @ loc.T_c_w, uv, lines, loc.inliers) - cost(exp(-h * e) @ loc.T_c_w, uv, lines, loc.inliers))
-             / (2 * h) for e in np.eye(6)]
-        worst = max(worst, float(np.max(np.abs(g))) / c0)
+        worst = max(worst, _relative_gradient(
+            lambda T: _huber(line_reprojection_errors(T, uv, lines, K)[loc.inliers], 2.0), loc.T_c_w))
     assert worst < 1e-4, worst
 
 
@@ -414,17 +416,6 @@ def test_the_depth_pose_is_a_stationary_point_of_the_robust_pixel_cost_on_its_ow
     depth noise, 40 % outliers, two seeds): measured 1e-8 (random) and 2e-7 (sphere), against 11-13 when
     the offsets are scaled by ``f`` instead of ``f / z`` (far points over-weighted)."""
     f, delta = 500.0, 8.0
-
-    def cost(T, Xq, lines, inl):
-        r = point_line_errors(T, Xq, lines, f)[inl]
-        return float(np.sum(np.where(r <= delta, 0.5 * r * r, delta * r - 0.5 * delta * delta)))
-
-    def exp(xi):
-        E = np.eye(4)
-        E[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
-        E[:3, 3] = xi[3:]
-        return E
-
     worst = 0.0
     for seed in range(2):
         X, T_true, uv, out = _scene(noise=1.5, outliers=0.4, seed=seed)
@@ -433,11 +424,8 @@ def test_the_depth_pose_is_a_stationary_point_of_the_robust_pixel_cost_on_its_ow
         loc = localize_against_lines(uv, lines, K, depth=z, threshold=delta)
         assert loc.success
         Xq = np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ np.linalg.inv(K).T * z[:, None]  # rays · z
-        c0 = cost(loc.T_c_w, Xq, lines, loc.inliers)
-        h = 1e-6
-        g = [(cost(exp(h * e) @ loc.T_c_w, Xq, lines, loc.inliers) - cost(exp(-h * e) @ loc.T_c_w, Xq, lines, loc.inliers))
-             / (2 * h) for e in np.eye(6)]
-        worst = max(worst, float(np.max(np.abs(g))) / c0)
+        worst = max(worst, _relative_gradient(
+            lambda T: _huber(point_line_errors(T, Xq, lines, f)[loc.inliers], delta), loc.T_c_w))
     assert worst < 1e-4, worst
 
 
