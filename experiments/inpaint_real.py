@@ -60,13 +60,14 @@ BASELINES = ("telea", "ns")
 def inference_settings(cfg) -> str:
     """The checkpoint's inference settings in words, from its :class:`~privslam_jax.inpaint.filter.InpainterConfig`."""
     parts = ["flip average"] if cfg.flip_average else []
+    prefill = cfg.prefill.upper() if cfg.prefill == "ns" else cfg.prefill.capitalize()
     if cfg.prefill_blend_distance > 0.0:
         unit = "model pixels, i.e. frame pixels / the crop's resize factor" if cfg.prefill_blend_unit == "model" \
             else "frame pixels"
-        parts.append(f"Telea blend with the network's share {cfg.prefill_blend:g} · (1 − exp(−d / "
+        parts.append(f"{prefill} blend with the network's share {cfg.prefill_blend:g} · (1 − exp(−d / "
                      f"{cfg.prefill_blend_distance:g})) at distance d from the visible pixels in {unit}")
     elif cfg.prefill_blend < 1.0:
-        parts.append(f"Telea blend with the network's share {cfg.prefill_blend:g}")
+        parts.append(f"{prefill} blend with the network's share {cfg.prefill_blend:g}")
     return ", ".join(parts) or "none"
 
 

@@ -311,6 +311,7 @@ TRAIN_CASES = [
     ("synthetic_shapes", ["--out", MISSING, "--frames", "10,x"], "--frames"),
     ("synthetic_shapes", ["--out", MISSING, "--frames", "100"], "--frames"),
     ("synthetic_shapes", ["--out", MISSING, "--min-area", "0"], "--min-area"),
+    ("synthetic_shapes", ["--out", __file__], "--out"),
 ]
 
 

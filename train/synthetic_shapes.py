@@ -40,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--frames: comma-separated integers, got {a.frames!r}")
     if not frames or not all(0 <= f < 100 for f in frames):
         p.error(f"--frames: indices in [0, 100), got {a.frames!r}")
+    if a.out.exists() and not a.out.is_dir():
+        p.error(f"--out: {a.out} is a file, not a folder")
 
     from privslam_jax.data.images import write_image_file
     from privslam_jax.data.synthetic import SynthConfig, make_sequence, parse_seeds
